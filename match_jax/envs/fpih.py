@@ -1,0 +1,436 @@
+"""The fragile peg-in-hole (fPiH) environment: FR3 arm + peg + hole block in MuJoCo-MJX.
+
+A Brax-style functional env: `reset(key) -> State`, `step(State, action) -> State`, State a pytree
+(Brax's `envs.State`), jit- and vmap-able. One policy step (15 Hz) holds the action's targets over
+8 control substeps (120 Hz); each control substep computes the control law from MJX's Jacobian, mass
+matrix and bias forces and advances the physics by `physics_substeps` MuJoCo steps.
+
+Frames: world z up; the hole block sits on the table (z = 0), its bore axis vertical. Forces are the
+force the robot applies to the environment, world frame (pressing down gives F_z < 0).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from brax.envs.base import Env as BraxEnv
+from brax.envs.base import State
+
+from match_jax import sim
+from match_jax.controllers.action_spaces import ActionConfig, ActionSpace, get_action_space
+from match_jax.controllers.osc import ControllerConfig, ControlTarget, hybrid_torque
+from match_jax.sim import mjx
+
+# Hand pointing down: EE x = world x, EE y = -world y, EE z = -world z (at zero yaw).
+R_DOWN = np.diag([1.0, -1.0, -1.0])
+NOISE_TYPES = ("gaussian", "uniform")
+PHASE_APPROACH, PHASE_CONTACT, PHASE_INSERTION = 0, 1, 2
+
+
+@dataclasses.dataclass(frozen=True)
+class FPiHConfig:
+    """Task, timing, noise and reward settings (paper defaults; see shared/DESIGN.md).
+
+    Lengths in meters, forces in newtons, angles in radians, times in seconds.
+    """
+
+    control: str = "hybrid"  # 'pose' | 'vices' | 'hybrid'
+    scene_file: str = ""  # MJCF path; "" = the packaged fpih_scene.xml
+    controller: ControllerConfig = ControllerConfig()
+    actions: ActionConfig = ActionConfig()
+    # Timing: policy 15 Hz, control law 120 Hz, physics `physics_substeps` x 120 Hz.
+    control_substeps: int = 8
+    control_dt: float = 1.0 / 120.0
+    physics_substeps: int = 1
+    episode_steps: int = 150
+    # Break: |F| >= break_force on any physics step ends the episode; math.inf = unbreakable.
+    break_force: float = 10.0
+    # Hole placement: nominal bore centre on the table, uniform xy jitter, uniform yaw.
+    hole_xy: tuple[float, float] = (0.55, 0.0)
+    hole_xy_range: float = 0.02
+    hole_yaw_range: float = math.pi
+    # Spawn: end effector (fingertip frame) `spawn_height` above the hole top, plus noise (gaussian sd /
+    # uniform half-width); the height is clipped so the peg tip starts >= `spawn_min_clearance` above it.
+    spawn_height: float = 0.047
+    spawn_min_clearance: float = 0.005
+    spawn_noise: tuple[float, float, float] = (0.02, 0.02, 0.01)
+    spawn_noise_type: str = "gaussian"
+    hand_yaw_range: float = 0.785
+    ik_iterations: int = 12
+    # Observation noise: hole position per episode; force and EE position per step.
+    hole_obs_noise: float = 0.001
+    hole_obs_noise_type: str = "gaussian"
+    force_obs_noise: float = 1.0
+    ee_pos_obs_noise: float = 0.00025
+    # Success / engagement: peg tip within `success_radius` of the bore axis and below these heights
+    # above the hole bottom.
+    success_radius: float = 0.0025
+    success_height: float = 0.001
+    engage_height: float = 0.0225
+    contact_threshold: float = 1.0  # N, per-axis contact label
+    keypoint_offsets: tuple[float, ...] = (-0.075, -0.025, 0.025, 0.075)
+    reward_terms: tuple[tuple[float, float], ...] = ((5.0, 4.0), (50.0, 2.0), (100.0, 0.0))
+
+    def __post_init__(self):
+        get_action_space(self.control)  # raises on an unknown controller name
+        if not (isinstance(self.break_force, (int, float)) and self.break_force > 0):
+            raise ValueError(f"break_force must be > 0 N (math.inf for unbreakable), got {self.break_force!r}")
+        for name in ("control_substeps", "physics_substeps", "episode_steps", "ik_iterations"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
+        for name in ("spawn_noise_type", "hole_obs_noise_type"):
+            if getattr(self, name) not in NOISE_TYPES:
+                raise ValueError(f"{name} must be one of {NOISE_TYPES}, got {getattr(self, name)!r}")
+        for name in ("hole_obs_noise", "force_obs_noise", "ee_pos_obs_noise", "hole_xy_range",
+                     "hole_yaw_range", "hand_yaw_range", "contact_threshold"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if len(self.spawn_noise) != 3 or any(not v >= 0 for v in self.spawn_noise):
+            raise ValueError(f"spawn_noise must be 3 non-negative numbers, got {self.spawn_noise!r}")
+        if not self.control_dt > 0:
+            raise ValueError(f"control_dt must be > 0 s, got {self.control_dt!r}")
+
+    @property
+    def policy_dt(self) -> float:
+        return self.control_dt * self.control_substeps
+
+
+def _yaw_rotation(yaw: jax.Array) -> jax.Array:
+    c, s = jnp.cos(yaw), jnp.sin(yaw)
+    return jnp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _down_rotation(yaw: jax.Array) -> jax.Array:
+    """EE orientation pointing down, rotated by `yaw` about world z."""
+    return _yaw_rotation(yaw) @ jnp.asarray(R_DOWN)
+
+
+def _ee_yaw(rot: jax.Array) -> jax.Array:
+    return jnp.arctan2(rot[1, 0], rot[0, 0])
+
+
+class FPiHEnv(BraxEnv):
+    """Fragile peg-in-hole with a pose, VICES or hybrid force/position low-level controller.
+
+    Observations are a dict: 'state' (policy) and 'privileged_state' (critic). `step` does not reset
+    finished envs; use `match_jax.envs.AutoResetEnv` (or Brax's training wrappers) for that.
+    """
+
+    def __init__(self, config: FPiHConfig = FPiHConfig()):
+        self.config = config
+        self.action_space: ActionSpace = get_action_space(config.control)
+        self.mj_model = sim.load_model(config.physics_substeps, config.control_dt, config.scene_file or None)
+        self.ids = sim.SceneIds(self.mj_model)
+        self.mjx_model = mjx.put_model(self.mj_model)
+        self._hole_top_offset = float(self.mj_model.site_pos[self.ids.hole_top_site][2])
+        self._peg_tip_below_ee = self._nominal_peg_tip_below_ee()
+        self._home_qpos = self._nominal_qpos()
+        self._obs_sizes = None
+
+    # ----------------------------------------------------------------------------------- set-up
+    def _nominal_peg_tip_below_ee(self) -> float:
+        data = mujoco.MjData(self.mj_model)
+        mujoco.mj_kinematics(self.mj_model, data)
+        rot = data.site_xmat[self.ids.ee_site].reshape(3, 3)
+        offset = data.site_xpos[self.ids.peg_tip_site] - data.site_xpos[self.ids.ee_site]
+        return float((rot.T @ offset)[2])
+
+    def _nominal_qpos(self) -> np.ndarray:
+        """Joint angles (C MuJoCo damped least squares) with the EE at the nominal spawn point."""
+        model, data = self.mj_model, mujoco.MjData(self.mj_model)
+        hole = np.array([*self.config.hole_xy, self._hole_top_offset])
+        target = hole + np.array([0.0, 0.0, self.config.spawn_height])
+        data.qpos[:] = np.array([0.0, 0.3, 0.0, -2.2, 0.0, 2.5, 0.785])
+        for _ in range(200):
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_comPos(model, data)
+            err = self._pose_error_np(data, target, R_DOWN)
+            jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+            mujoco.mj_jacSite(model, data, jacp, jacr, self.ids.ee_site)
+            jac = np.vstack([jacp, jacr])
+            data.qpos[:] += jac.T @ np.linalg.solve(jac @ jac.T + 1e-8 * np.eye(6), err)
+        if np.linalg.norm(err) > 1e-6:
+            raise RuntimeError(f"IK for the nominal spawn pose did not converge (error {np.linalg.norm(err)})")
+        return data.qpos.copy()
+
+    def _pose_error_np(self, data, pos_target, rot_target) -> np.ndarray:
+        pos = data.site_xpos[self.ids.ee_site]
+        rot = data.site_xmat[self.ids.ee_site].reshape(3, 3)
+        rot_err = 0.5 * np.sum(np.cross(rot.T, np.asarray(rot_target).T), axis=0)
+        return np.concatenate([pos_target - pos, rot_err])
+
+    # ------------------------------------------------------------------------------ interface
+    @property
+    def action_size(self) -> int:
+        return self.action_space.size
+
+    @property
+    def observation_size(self) -> dict[str, tuple[int, ...]]:
+        if self._obs_sizes is None:
+            obs = jax.eval_shape(self.reset, jax.random.PRNGKey(0)).obs
+            self._obs_sizes = {k: tuple(v.shape) for k, v in obs.items()}
+        return self._obs_sizes
+
+    @property
+    def backend(self) -> str:
+        return "mjx"
+
+    @property
+    def dt(self) -> float:
+        """Policy step duration (s)."""
+        return self.config.policy_dt
+
+    # --------------------------------------------------------------------------------- reset
+    def reset(self, rng: jax.Array) -> State:
+        cfg = self.config
+        rng, k_hole, k_yaw, k_spawn, k_hand, k_obs = jax.random.split(rng, 6)
+        hole_xy = jnp.asarray(cfg.hole_xy) + jax.random.uniform(
+            k_hole, (2,), minval=-cfg.hole_xy_range, maxval=cfg.hole_xy_range)
+        hole_pos = jnp.concatenate([hole_xy, jnp.zeros(1)])  # bore bottom centre, on the table
+        hole_yaw = jax.random.uniform(k_yaw, (), minval=-cfg.hole_yaw_range, maxval=cfg.hole_yaw_range)
+        spawn_noise = self._noise(k_spawn, jnp.asarray(cfg.spawn_noise), cfg.spawn_noise_type, (3,))
+        hole_top = hole_pos + jnp.array([0.0, 0.0, self._hole_top_offset])
+        ee_target = hole_top + jnp.array([0.0, 0.0, cfg.spawn_height]) + spawn_noise
+        min_ee_height = hole_top[2] + self._peg_tip_below_ee + cfg.spawn_min_clearance
+        ee_target = ee_target.at[2].set(jnp.maximum(ee_target[2], min_ee_height))
+        hand_yaw = jax.random.uniform(k_hand, (), minval=-cfg.hand_yaw_range, maxval=cfg.hand_yaw_range)
+        hole_obs_offset = self._noise(k_obs, cfg.hole_obs_noise, cfg.hole_obs_noise_type, (3,))
+
+        data = mjx.make_data(self.mjx_model)
+        half = 0.5 * hole_yaw
+        data = data.replace(
+            mocap_pos=data.mocap_pos.at[self.ids.hole_mocap].set(hole_pos),
+            mocap_quat=data.mocap_quat.at[self.ids.hole_mocap].set(
+                jnp.array([jnp.cos(half), 0.0, 0.0, jnp.sin(half)])),
+        )
+        data = self._inverse_kinematics(data, ee_target, _down_rotation(hand_yaw))
+        posture = data.qpos
+
+        zeros3 = jnp.zeros(3)
+        info = {
+            "rng": rng,
+            "steps": jnp.zeros((), jnp.int32),
+            "hole_pos": hole_pos,
+            "hole_yaw": hole_yaw,
+            "hole_obs_offset": hole_obs_offset,
+            "posture": posture,
+            "prev_action": self._initial_action(),
+            "ee_force": zeros3,
+            "contact_axes": zeros3,
+            "in_contact": jnp.zeros(()),
+            "max_force": jnp.zeros(()),
+            "mean_force": jnp.zeros(()),
+            "success": jnp.zeros(()),
+            "engaged": jnp.zeros(()),
+            "broken": jnp.zeros(()),
+            "truncation": jnp.zeros(()),
+            "had_contact": jnp.zeros(()),
+            "had_engaged": jnp.zeros(()),
+            "phase": jnp.zeros((), jnp.int32),
+            "position_axes": jnp.ones(3),
+        }
+        obs = self._observations(data, info, jax.random.split(rng)[1])
+        metrics = self._metrics(info, jnp.zeros(()))
+        return State(pipeline_state=data, obs=obs, reward=jnp.zeros(()), done=jnp.zeros(()),
+                     metrics=metrics, info=info)
+
+    def _noise(self, key, scale, kind: str, shape) -> jax.Array:
+        if kind == "gaussian":
+            return scale * jax.random.normal(key, shape)
+        return scale * jax.random.uniform(key, shape, minval=-1.0, maxval=1.0)
+
+    def _initial_action(self) -> jax.Array:
+        """The neutral action: zero, with the force-z target at 0 N (a = 1 maps to f_z_max = 0)."""
+        action = jnp.zeros(self.action_size)
+        if self.action_space.force:
+            lo, hi = self.config.actions.force_z_range
+            action = action.at[self.action_space.force[2]].set(-1.0 + 2.0 * (0.0 - lo) / (hi - lo))
+        return action
+
+    def _inverse_kinematics(self, data: mjx.Data, pos: jax.Array, rot: jax.Array) -> mjx.Data:
+        """Damped least-squares IK from the nominal joint angles to an EE pose (fixed iterations)."""
+        m, ids = self.mjx_model, self.ids
+
+        def body(qpos, _):
+            d = mjx.com_pos(m, mjx.kinematics(m, data.replace(qpos=qpos)))
+            ee_pos, ee_rot = d.site_xpos[ids.ee_site], d.site_xmat[ids.ee_site]
+            err = jnp.concatenate([pos - ee_pos, 0.5 * jnp.sum(jnp.cross(ee_rot.T, rot.T), axis=0)])
+            jacp, jacr = mjx.jac(m, d, ee_pos, ids.hand_body)
+            jac = jnp.concatenate([jacp.T, jacr.T])
+            dq = jac.T @ jnp.linalg.solve(jac @ jac.T + 1e-6 * jnp.eye(6), err)
+            return qpos + dq, None
+
+        qpos, _ = jax.lax.scan(body, jnp.asarray(self._home_qpos), None, length=self.config.ik_iterations)
+        return mjx.com_pos(m, mjx.kinematics(m, data.replace(qpos=qpos)))
+
+    # ---------------------------------------------------------------------------------- step
+    def step(self, state: State, action: jax.Array) -> State:
+        cfg, space = self.config, self.action_space
+        action = jnp.asarray(action)
+        if action.shape != (self.action_size,):
+            raise ValueError(
+                f"action has shape {action.shape}; the '{cfg.control}' controller expects ({self.action_size},) "
+                f"per env ({', '.join(space.describe())}); vmap over a batch")
+        data, info = state.pipeline_state, state.info
+        action = jnp.clip(action, jnp.asarray(space.low), jnp.asarray(space.high))
+        smoothed = self._smooth(action, info["prev_action"])
+        target = self._control_target(data, info, smoothed)
+
+        data, ee_force, max_force, mean_force = self.simulate(data, info["ee_force"], target)
+
+        rng, obs_key = jax.random.split(info["rng"])
+        steps = info["steps"] + 1
+        tip, hole_pos = data.site_xpos[self.ids.peg_tip_site], info["hole_pos"]
+        lateral = jnp.linalg.norm(tip[:2] - hole_pos[:2])
+        height = tip[2] - hole_pos[2]
+        success = ((lateral < cfg.success_radius) & (height < cfg.success_height)).astype(jnp.float32)
+        engaged = ((lateral < cfg.success_radius) & (height < cfg.engage_height)).astype(jnp.float32)
+        broken = (max_force >= cfg.break_force).astype(jnp.float32)
+        contact_axes = (jnp.abs(ee_force) > cfg.contact_threshold).astype(jnp.float32)
+        in_contact = (jnp.any(contact_axes > 0) | (max_force > cfg.contact_threshold)).astype(jnp.float32)
+        had_contact = jnp.maximum(info["had_contact"], in_contact)
+        had_engaged = jnp.maximum(info["had_engaged"], engaged)
+        phase = jnp.where(had_engaged > 0, PHASE_INSERTION, jnp.where(had_contact > 0, PHASE_CONTACT, PHASE_APPROACH))
+        diverged = jnp.any(~jnp.isfinite(data.qpos)) | jnp.any(~jnp.isfinite(data.qvel))
+        truncation = (steps >= cfg.episode_steps).astype(jnp.float32)
+        done = jnp.maximum(jnp.maximum(broken, truncation), diverged.astype(jnp.float32))
+        reward = self._reward(data, hole_pos) + engaged + success
+        reward = jnp.where(diverged, 0.0, reward)
+
+        info = {
+            **info,
+            "rng": rng,
+            "steps": steps,
+            "prev_action": smoothed,
+            "ee_force": ee_force,
+            "contact_axes": contact_axes,
+            "in_contact": in_contact,
+            "max_force": max_force,
+            "mean_force": mean_force,
+            "success": success,
+            "engaged": engaged,
+            "broken": broken,
+            "truncation": truncation * (1.0 - broken),
+            "had_contact": had_contact,
+            "had_engaged": had_engaged,
+            "phase": phase.astype(jnp.int32),
+            "position_axes": target.position_axes,
+        }
+        obs = self._observations(data, info, obs_key)
+        obs = jax.tree_util.tree_map(lambda x: jnp.where(diverged, 0.0, x), obs)
+        return state.replace(pipeline_state=data, obs=obs, reward=reward, done=done,
+                             metrics=self._metrics(info, reward), info=info)
+
+    def simulate(self, data: mjx.Data, ee_force: jax.Array, target: ControlTarget,
+                 control_steps: int | None = None):
+        """Run the control law toward `target` for `control_steps` 120 Hz steps (default: one policy step).
+
+        Returns (data, last force reading (N, world), max |F| over physics steps, mean |F|), with
+        `data` kinematics refreshed at the final state. Exposed for tests and scripted experiments.
+        """
+        cfg, m = self.config, self.mjx_model
+        control_steps = cfg.control_substeps if control_steps is None else control_steps
+        low, high = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
+
+        def torque_fn(d, force):
+            dyn = sim.arm_dynamics(m, d, self.ids, force)
+            return jnp.clip(hybrid_torque(dyn, target, cfg.controller), low, high)
+
+        def physics_step(carry, hold_torque: bool):
+            d, force, max_force, force_sum = carry
+            fn = (lambda d_: d_.ctrl) if hold_torque else (lambda d_: torque_fn(d_, force))
+            d = sim.controlled_step(m, d, fn)
+            force = sim.peg_contact_force(m, d, self.ids.peg_geom)
+            magnitude = jnp.linalg.norm(force)
+            return d, force, jnp.maximum(max_force, magnitude), force_sum + magnitude
+
+        def control_step(carry, _):
+            # The law runs at 120 Hz on the latest force reading; its torque is held over the physics
+            # substeps (physics_substeps > 1); the force sensor is read after every physics step.
+            carry = physics_step(carry, hold_torque=False)
+            if cfg.physics_substeps > 1:
+                carry, _ = jax.lax.scan(lambda c, _: (physics_step(c, hold_torque=True), None), carry, None,
+                                        length=cfg.physics_substeps - 1)
+            return carry, None
+
+        carry = (data, ee_force, jnp.zeros(()), jnp.zeros(()))
+        (data, ee_force, max_force, force_sum), _ = jax.lax.scan(control_step, carry, None, length=control_steps)
+        data = mjx.com_pos(m, mjx.kinematics(m, data))
+        return data, ee_force, max_force, force_sum / (control_steps * cfg.physics_substeps)
+
+    def _smooth(self, action: jax.Array, prev: jax.Array) -> jax.Array:
+        """EMA on continuous components; selections pass through."""
+        alpha = self.config.actions.ema
+        smoothed = alpha * action + (1.0 - alpha) * prev
+        if self.action_space.selection:
+            sel = jnp.asarray(self.action_space.selection)
+            smoothed = smoothed.at[sel].set(action[sel])
+        return smoothed
+
+    def _control_target(self, data: mjx.Data, info: dict, action: jax.Array) -> ControlTarget:
+        cfg, space, acfg = self.config, self.action_space, self.config.actions
+        ee_pos, ee_rot = data.site_xpos[self.ids.ee_site], data.site_xmat[self.ids.ee_site]
+        observed_hole_top = info["hole_pos"] + info["hole_obs_offset"] + jnp.array([0.0, 0.0, self._hole_top_offset])
+        pos = ee_pos + action[jnp.asarray(space.position)] * acfg.pos_scale
+        pos = jnp.clip(pos, observed_hole_top - acfg.pos_box, observed_hole_top + acfg.pos_box)
+        yaw = _ee_yaw(ee_rot) + action[space.yaw[0]] * acfg.yaw_scale
+        kp = jnp.asarray(cfg.controller.pos_stiffness, jnp.float32)
+        if space.stiffness:
+            lo, hi = acfg.stiffness_range
+            kp = lo + 0.5 * (action[jnp.asarray(space.stiffness)] + 1.0) * (hi - lo)
+        force = jnp.zeros(3)
+        position_axes = jnp.ones(3)
+        if space.force:
+            f = action[jnp.asarray(space.force)]
+            lo, hi = acfg.force_z_range
+            force = jnp.array([f[0] * acfg.force_xy_max, f[1] * acfg.force_xy_max, lo + 0.5 * (f[2] + 1.0) * (hi - lo)])
+            position_axes = (action[jnp.asarray(space.selection)] <= acfg.selection_threshold).astype(jnp.float32)
+        return ControlTarget(pos=pos, rot=_down_rotation(yaw), force=force, position_axes=position_axes,
+                             pos_stiffness=kp, posture=info["posture"])
+
+    def _reward(self, data: mjx.Data, hole_pos: jax.Array) -> jax.Array:
+        """Factory keypoint reward: keypoints on the peg axis vs the same keypoints at the goal."""
+        cfg = self.config
+        tip = data.site_xpos[self.ids.peg_tip_site]
+        axis = -data.xmat[self.ids.peg_body][:, 2]  # peg axis from tip to top (peg frame +z is the tip)
+        offsets = jnp.asarray(cfg.keypoint_offsets)[:, None]
+        keypoints = tip + offsets * axis
+        goal = hole_pos + offsets * jnp.array([0.0, 0.0, 1.0])
+        dist = jnp.mean(jnp.linalg.norm(keypoints - goal, axis=-1))
+        return sum(1.0 / (jnp.exp(a * dist) + b + jnp.exp(-a * dist)) for a, b in cfg.reward_terms)
+
+    def _observations(self, data: mjx.Data, info: dict, key: jax.Array) -> dict[str, jax.Array]:
+        cfg, ids = self.config, self.ids
+        k_force, k_pos = jax.random.split(key)
+        ee_pos, ee_rot = data.site_xpos[ids.ee_site], data.site_xmat[ids.ee_site]
+        jacp, jacr = mjx.jac(self.mjx_model, data, ee_pos, ids.hand_body)
+        lin_vel, ang_vel = jacp.T @ data.qvel, jacr.T @ data.qvel
+        hole_top = info["hole_pos"] + jnp.array([0.0, 0.0, self._hole_top_offset])
+        hole_yaw = jnp.array([jnp.cos(info["hole_yaw"]), jnp.sin(info["hole_yaw"])])
+        force = info["ee_force"]
+        noisy_ee = ee_pos + cfg.ee_pos_obs_noise * jax.random.normal(k_pos, (3,))
+        noisy_force = force + cfg.force_obs_noise * jax.random.normal(k_force, (3,))
+        policy = jnp.concatenate([
+            noisy_ee - (hole_top + info["hole_obs_offset"]), hole_yaw, lin_vel, ang_vel, noisy_force,
+            info["prev_action"]])
+        tip = data.site_xpos[ids.peg_tip_site]
+        privileged = jnp.concatenate([
+            ee_pos - hole_top, hole_yaw, lin_vel, ang_vel, force, info["contact_axes"], data.qpos,
+            tip, data.xquat[ids.peg_body], info["hole_pos"], ee_pos, ee_rot.ravel(), info["prev_action"]])
+        return {"state": policy, "privileged_state": privileged}
+
+    def _metrics(self, info: dict, reward: jax.Array) -> dict[str, jax.Array]:
+        return {
+            "success": info["success"],
+            "engaged": info["engaged"],
+            "broken": info["broken"],
+            "in_contact": info["in_contact"],
+            "max_force": info["max_force"],
+            "reward": reward,
+        }
