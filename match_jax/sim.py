@@ -58,6 +58,7 @@ class SceneIds:
         self.peg_body = model.body("peg").id
         self.hole_mocap = int(model.body("hole").mocapid[0])
         self.peg_geom = model.geom("peg").id
+        self.peg_geoms = (self.peg_geom, model.geom("peg_rim_proxy").id)
         self.floor_geom = model.geom("floor").id
 
 
@@ -77,17 +78,18 @@ def arm_dynamics(m: mjx.Model, d: mjx.Data, ids: SceneIds, ee_force: jax.Array) 
     )
 
 
-def peg_contact_force(m: mjx.Model, d: mjx.Data, peg_geom: int) -> jax.Array:
+def peg_contact_force(m: mjx.Model, d: mjx.Data, peg_geoms: tuple[int, ...]) -> jax.Array:
     """Total force (N, world) the peg applies to the environment, from the last constraint solve.
 
-    Every contact pair of the scene involves the peg (condim 3). A contact's force acts on geom2
-    along +frame^T f; MuJoCo may order a pair either way, so the sign follows which geom the peg is.
+    Every contact pair of the scene involves one of the peg's geoms `peg_geoms` (condim 3). A
+    contact's force acts on geom2 along +frame^T f; MuJoCo may order a pair either way, so the sign
+    follows which side the peg is on.
     Pressing down gives a negative z component.
     """
     forces, ids = _mjx_support.contact_force_dim(m, d, 3)
     contact = d._impl.contact
     frames = contact.frame[ids]
-    on_env = jnp.where(contact.geom[ids, 0] == peg_geom, 1.0, -1.0)
+    on_env = jnp.where(jnp.isin(contact.geom[ids, 0], jnp.asarray(peg_geoms)), 1.0, -1.0)
     return jnp.einsum("c,ci,cij->j", on_env, forces[:, :3], frames)
 
 

@@ -346,7 +346,7 @@ class FPiHEnv(BraxEnv):
             d, force, max_force, force_sum = carry
             fn = (lambda d_: d_.ctrl) if hold_torque else (lambda d_: torque_fn(d_, force))
             d = sim.controlled_step(m, d, fn)
-            force = sim.peg_contact_force(m, d, self.ids.peg_geom)
+            force = sim.peg_contact_force(m, d, self.ids.peg_geoms)
             magnitude = jnp.linalg.norm(force)
             return d, force, jnp.maximum(max_force, magnitude), force_sum + magnitude
 
