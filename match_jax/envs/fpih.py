@@ -178,6 +178,27 @@ class FPiHEnv(BraxEnv):
         return self._obs_sizes
 
     @property
+    def policy_obs_layout(self) -> dict[str, slice]:
+        """Where each quantity sits in obs['state'] (units: m, rad-free cos/sin, m/s, rad/s, N)."""
+        sizes = [("ee_rel_hole", 3), ("hole_yaw_cos_sin", 2), ("ee_lin_vel", 3), ("ee_ang_vel", 3),
+                 ("ee_force", 3), ("prev_action", self.action_size)]
+        layout, start = {}, 0
+        for name, size in sizes:
+            layout[name] = slice(start, start + size)
+            start += size
+        return layout
+
+    @property
+    def peg_tip_below_ee(self) -> float:
+        """Distance (m) from the end-effector site down to the peg tip, along the hand axis."""
+        return self._peg_tip_below_ee
+
+    @property
+    def hole_depth(self) -> float:
+        """Bore depth (m): the hole top is this far above the hole bottom."""
+        return self._hole_top_offset
+
+    @property
     def backend(self) -> str:
         return "mjx"
 

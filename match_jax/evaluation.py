@@ -1,0 +1,110 @@
+"""Evaluation: roll a policy out for whole episodes and compute the paper's Table 1 metrics.
+
+A policy is `policy(obs, policy_state, key) -> (action, policy_state)` for ONE env (it is vmapped),
+where `obs` is the env's observation dict. Metrics come only from the env's own per-step info.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
+
+# Per-step info recorded during a rollout: name -> key in State.info.
+RECORDED = ("success", "engaged", "broken", "in_contact", "mean_force", "max_force", "phase",
+            "position_axes", "contact_axes", "truncation")
+
+
+def make_rollout(env, policy: Policy, num_steps: int | None = None):
+    """A jittable function (keys (B, 2), policy_state batch) -> trajectory dict of (T, B, ...) arrays.
+
+    Each env runs exactly one episode of `num_steps` (default env.config.episode_steps) policy steps
+    from `env.reset(key)`; steps after the episode ended (break) are marked by `done_before`.
+    """
+    num_steps = num_steps or env.config.episode_steps
+
+    def one_env(key, policy_state):
+        reset_key, policy_key = jax.random.split(key)
+        state = env.reset(reset_key)
+
+        def body(carry, step_key):
+            state, pstate, ended = carry
+            action, pstate = policy(state.obs, pstate, step_key)
+            state = env.step(state, action)
+            record = {name: state.info[name] for name in RECORDED}
+            record["done_before"] = ended
+            record["done"] = state.done
+            return (state, pstate, jnp.maximum(ended, state.done)), record
+
+        keys = jax.random.split(policy_key, num_steps)
+        _, traj = jax.lax.scan(body, (state, policy_state, jnp.zeros(())), keys)
+        return traj
+
+    def rollout(keys, policy_states):
+        traj = jax.vmap(one_env)(keys, policy_states)  # (B, T, ...)
+        return jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), traj)
+
+    return rollout
+
+
+def episode_metrics(traj: dict, policy_dt: float) -> dict[str, np.ndarray]:
+    """Per-episode metrics from a (T, B, ...) trajectory of env info.
+
+    success: the success condition held on some step before any break.
+    broken: the peg broke (the episode ended by break).
+    time_to_success_s: (first success step + 1) * policy_dt, NaN for failures.
+    mean_force_n: mean force magnitude (N) over in-contact steps, NaN if never in contact.
+    force_selected_contact / force_selected_free: fraction of in-contact / free-space steps on which
+      force control was selected, averaged over the three axes (NaN if no such step).
+    """
+    traj = {k: np.asarray(v) for k, v in traj.items()}
+    alive = 1.0 - traj["done_before"]  # (T, B)
+    success_t = (traj["success"] > 0) & (alive > 0)
+    broken_t = (traj["broken"] > 0) & (alive > 0)
+    T = alive.shape[0]
+    steps = np.arange(T)[:, None]
+    first_success = np.where(success_t, steps, T).min(axis=0)
+    first_break = np.where(broken_t, steps, T).min(axis=0)
+    success = first_success < np.minimum(first_break, T)
+    broken = first_break < T
+    time_to_success = np.where(success, (first_success + 1) * policy_dt, np.nan)
+
+    contact = (traj["in_contact"] > 0) & (alive > 0)
+    free = (traj["in_contact"] <= 0) & (alive > 0)
+    n_contact = contact.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_force = np.where(n_contact > 0, (traj["mean_force"] * contact).sum(axis=0) / n_contact, np.nan)
+        force_sel = (1.0 - traj["position_axes"]).mean(axis=-1)  # (T, B)
+        sel_contact = np.where(n_contact > 0, (force_sel * contact).sum(axis=0) / n_contact, np.nan)
+        n_free = free.sum(axis=0)
+        sel_free = np.where(n_free > 0, (force_sel * free).sum(axis=0) / n_free, np.nan)
+    return {
+        "success": success.astype(np.float64),
+        "broken": broken.astype(np.float64),
+        "time_to_success_s": time_to_success,
+        "mean_force_n": mean_force,
+        "force_selected_contact": sel_contact,
+        "force_selected_free": sel_free,
+    }
+
+
+def summarize(metrics: dict[str, np.ndarray]) -> dict[str, float]:
+    """Means over episodes (NaN-aware): the JSON/table numbers of eval.py."""
+
+    def nanmean(x):
+        x = np.asarray(x, np.float64)
+        return float(np.nanmean(x)) if np.any(~np.isnan(x)) else float("nan")
+
+    return {
+        "episodes": int(len(metrics["success"])),
+        "success_rate": nanmean(metrics["success"]),
+        "break_rate": nanmean(metrics["broken"]),
+        "mean_time_to_success_s": nanmean(metrics["time_to_success_s"]),
+        "mean_force_n": nanmean(metrics["mean_force_n"]),
+        "force_selected_contact": nanmean(metrics["force_selected_contact"]),
+        "force_selected_free": nanmean(metrics["force_selected_free"]),
+    }
