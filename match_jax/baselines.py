@@ -35,7 +35,7 @@ class SpiralConfig:
     transit_speed: float = 0.010  # descent while still above the hover height
     press_force_n: float = 0.3  # downward force during the spiral
     spiral_pitch: float = 0.0015  # radial growth per turn
-    spiral_speed: float = 0.010  # tangential speed along the spiral
+    spiral_speed: float = 0.005  # tangential speed along the spiral (lateral impacts: ~10 kg x v)
     spiral_max_radius: float = 0.006  # restart the spiral beyond this radius
     sink_depth: float = 0.0003  # tip this far below the contact height: on the chamfer, hold xy
     drop_depth: float = 0.0006  # tip this far below the contact height: entering, insert
@@ -159,6 +159,15 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
         return action, new_state
 
     return policy
+
+
+def _speed_action(speed: float, env) -> float:
+    """z position action that makes the pose PD (k_p, k_d = 2 sqrt(k_p)) settle at `speed` (m/s).
+
+    The law settles where k_p e = k_d v, so the target must lead the end effector by e = v k_d / k_p.
+    """
+    kp = env.config.controller.pos_stiffness[2]
+    return speed * 2.0 * kp**0.5 / kp / env.config.actions.pos_scale
 
 
 def make_pose_descent_policy(env, descend_speed: float = 0.005, hover_height: float = 0.005,

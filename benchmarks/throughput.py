@@ -1,0 +1,121 @@
+"""Throughput of the fPiH env on this machine, with bare MJX and MuJoCo C on the same model as references.
+
+    python benchmarks/throughput.py                     # batch sizes 1, 16, 64, 256
+    python benchmarks/throughput.py --batch-sizes 256 --repeats 5 --json results/throughput.json
+
+Measured in one run, so the ratios are meaningful on a noisy machine:
+- env: jit(vmap(env.step)) policy steps/s (8 control substeps each: control law, contact force,
+  break check, observations, reward), and the physics steps/s that represents;
+- bare mjx.step: physics steps/s at the same batch on the same model and states, with the torques
+  held at gravity compensation (the arm hovers over the hole as at the start of an episode);
+- MuJoCo C: physics steps/s of `mujoco.rollout` over the same initial states and torques, using
+  all cores (one thread per core).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import time
+
+import match_jax  # noqa: F401  (fast XLA CPU flag)
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco import rollout
+
+from match_jax.envs import FPiHConfig, FPiHEnv
+from match_jax.sim import mjx
+
+
+def _timed(fn, state, repeats):
+    state = fn(state)  # compile
+    state = fn(state)  # and a second call: weak types settle after the first
+    jax.block_until_ready(state)
+    start = time.perf_counter()
+    for _ in range(repeats):
+        state = fn(state)
+    jax.block_until_ready(state)
+    return (time.perf_counter() - start) / repeats
+
+
+def benchmark(batch_sizes, repeats: int, control: str = "hybrid") -> dict:
+    env = FPiHEnv(FPiHConfig(control=control))
+    substeps = env.config.control_substeps * env.config.physics_substeps
+    reset, step = jax.jit(jax.vmap(env.reset)), jax.vmap(env.step)
+    action = env._initial_action()
+    m = env.mjx_model
+    results = {"control": control, "device": str(jax.devices()[0]), "physics_steps_per_policy_step": substeps,
+               "cpu_count": os.cpu_count(), "rows": []}
+
+    for batch in batch_sizes:
+        states = reset(jax.random.split(jax.random.PRNGKey(0), batch))
+        actions = jnp.tile(action, (batch, 1))
+        env_fn = jax.jit(lambda s: step(s, actions))
+        env_dt = _timed(env_fn, states, repeats)
+
+        # bare mjx.step: same model, same start states, gravity-compensation torques held
+        data = jax.vmap(lambda d: d.replace(ctrl=mjx.fwd_velocity(m, mjx.fwd_position(m, d)).qfrc_bias))(
+            states.pipeline_state)
+        bare_fn = jax.jit(jax.vmap(lambda d: jax.lax.fori_loop(0, substeps, lambda i, d: mjx.step(m, d), d)))
+        bare_dt = _timed(bare_fn, data, repeats)
+
+        # MuJoCo C on the same states and torques
+        model = env.mj_model
+        c_data = [mujoco.MjData(model) for _ in range(os.cpu_count() or 1)]
+        host = jax.device_get(data)
+        spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        init = np.empty((batch, mujoco.mj_stateSize(model, spec)))
+        for i in range(batch):
+            c_data[0].qpos[:], c_data[0].qvel[:] = host.qpos[i], host.qvel[i]
+            c_data[0].mocap_pos[:], c_data[0].mocap_quat[:] = host.mocap_pos[i], host.mocap_quat[i]
+            mujoco.mj_getState(model, c_data[0], init[i], spec)
+        controls = np.repeat(np.asarray(host.ctrl)[:, None, :], substeps * repeats, axis=1)
+        rollout.rollout(model, c_data, init, controls[:, :substeps])  # warm-up
+        start = time.perf_counter()
+        rollout.rollout(model, c_data, init, controls)
+        c_dt = (time.perf_counter() - start) / repeats
+
+        row = {
+            "batch": batch,
+            "env_policy_steps_per_s": batch / env_dt,
+            "env_physics_steps_per_s": batch * substeps / env_dt,
+            "bare_mjx_physics_steps_per_s": batch * substeps / bare_dt,
+            "mujoco_c_physics_steps_per_s": batch * substeps / c_dt,
+        }
+        row["env_vs_bare_mjx"] = row["env_physics_steps_per_s"] / row["bare_mjx_physics_steps_per_s"]
+        row["env_vs_mujoco_c"] = row["env_physics_steps_per_s"] / row["mujoco_c_physics_steps_per_s"]
+        results["rows"].append(row)
+        print(f"batch {batch:4d}: env {row['env_policy_steps_per_s']:9.0f} policy steps/s "
+              f"({row['env_physics_steps_per_s']:9.0f} physics/s) | bare mjx.step "
+              f"{row['bare_mjx_physics_steps_per_s']:9.0f}/s | MuJoCo C {row['mujoco_c_physics_steps_per_s']:9.0f}/s "
+              f"| env/bare {row['env_vs_bare_mjx']:.2f}, env/C {row['env_vs_mujoco_c']:.3f}", flush=True)
+    return results
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--batch-sizes", default="1,16,64,256", help="comma-separated env counts")
+    parser.add_argument("--repeats", type=int, default=5, help="timed calls per measurement")
+    parser.add_argument("--control", default="hybrid", choices=["pose", "vices", "hybrid"])
+    parser.add_argument("--json", type=pathlib.Path, default=None)
+    args = parser.parse_args()
+    try:
+        sizes = [int(b) for b in args.batch_sizes.split(",")]
+    except ValueError:
+        parser.error(f"--batch-sizes must be comma-separated integers, got {args.batch_sizes!r}")
+    if any(b < 1 for b in sizes) or args.repeats < 1:
+        parser.error(f"batch sizes and --repeats must be >= 1, got {sizes} and {args.repeats}")
+    results = benchmark(sizes, args.repeats, args.control)
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(results, indent=2))
+        print(f"wrote {args.json}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,128 @@
+"""The fPiH env: jit/vmap, fixed shapes, no NaN, auto-reset, break, configuration errors."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
+
+from conftest import QUIET
+
+
+def _random_actions(key, batch, env):
+    space = env.action_space
+    actions = jax.random.uniform(key, (batch, space.size), minval=-1.0, maxval=1.0)
+    if space.selection:  # Bernoulli selections, mostly position control as an initial policy would
+        sel = jax.random.bernoulli(key, 0.1, (batch, len(space.selection))).astype(jnp.float32)
+        actions = actions.at[:, jnp.asarray(space.selection)].set(sel)
+    return actions
+
+
+def _signature(tree):
+    return jax.tree_util.tree_map(lambda x: (x.shape, x.dtype), tree)
+
+
+@pytest.mark.parametrize("batch", [1, 64])
+def test_jit_vmap_shapes_and_dtypes_are_fixed(env, batched, batch):
+    reset, step = batched
+    state = reset(jax.random.split(jax.random.PRNGKey(1), batch))
+    nxt = step(state, _random_actions(jax.random.PRNGKey(2), batch, env))
+    assert _signature(nxt) == _signature(state)
+    assert nxt.obs["state"].shape == (batch, env.observation_size["state"][0])
+    assert nxt.obs["privileged_state"].shape == (batch, env.observation_size["privileged_state"][0])
+    assert nxt.reward.shape == (batch,) and nxt.done.shape == (batch,)
+
+
+def test_full_episodes_with_random_actions_have_no_nan(env, batched):
+    reset, step = batched
+    batch = 64
+    state = reset(jax.random.split(jax.random.PRNGKey(3), batch))
+    ended = np.zeros(batch, bool)
+    for t in range(env.config.episode_steps):
+        state = step(state, _random_actions(jax.random.PRNGKey(100 + t), batch, env))
+        for leaf in jax.tree_util.tree_leaves((state.obs, state.reward, state.pipeline_state.qpos)):
+            assert np.all(np.isfinite(np.asarray(leaf))), f"non-finite value at step {t}"
+        ended |= np.asarray(state.done) > 0
+    assert ended.all(), "every episode ends by break or time-out within episode_steps"
+    assert np.asarray(state.info["steps"]).max() <= env.config.episode_steps
+
+
+def test_reward_is_highest_at_the_goal(env):
+    """Keypoint reward: near its maximum (1/6 + 1/4 + 1/2) with the peg at the bottom, small far away."""
+    state = env.reset(jax.random.PRNGKey(0))
+    data = state.pipeline_state
+    far = float(env._reward(data, state.info["hole_pos"]))
+    tip = data.site_xpos[env.ids.peg_tip_site]
+    at_goal = float(env._reward(data, tip))  # pretend the hole bottom is exactly at the tip
+    assert at_goal == pytest.approx(1 / 6 + 1 / 4 + 1 / 2, abs=1e-3)
+    assert far < 0.5 * at_goal
+
+
+def test_auto_reset_starts_fresh_episodes():
+    env = AutoResetEnv(FPiHEnv(FPiHConfig(control="pose", episode_steps=3)))
+    reset, step = jax.jit(env.reset), jax.jit(env.step)
+    state = reset(jax.random.split(jax.random.PRNGKey(4), 4))
+    holes = [np.asarray(state.info["hole_pos"])]
+    zero = jnp.zeros((4, env.action_size))
+    for _ in range(3):
+        state = step(state, zero)
+    assert np.all(np.asarray(state.done) == 1), "time-out after episode_steps"
+    assert np.all(np.asarray(state.info["truncation"]) == 1)
+    assert np.all(np.asarray(state.info["steps"]) == 0), "finished envs restart"
+    holes.append(np.asarray(state.info["hole_pos"]))
+    assert not np.allclose(holes[0], holes[1]), "a new episode draws a new hole position"
+    assert "final_obs" in state.info
+    state = step(state, zero)
+    assert np.all(np.asarray(state.info["steps"]) == 1) and np.all(np.asarray(state.done) == 0)
+
+
+@pytest.fixture(scope="module")
+def ram_results():
+    """A scripted policy rams the peg down at full speed (pose action -1 in z), breakable and not."""
+    out = {}
+    for name, break_force in (("breakable", 10.0), ("unbreakable", math.inf)):
+        env = FPiHEnv(FPiHConfig(control="pose", break_force=break_force, **QUIET))
+        ram = jnp.array([0.0, 0.0, -1.0, 0.0])
+
+        def episode(key, env=env):
+            def body(state, _):
+                state = env.step(state, ram)
+                return state, (state.info["broken"], state.info["max_force"])
+            return jax.lax.scan(body, env.reset(key), None, length=40)[1]
+
+        out[name] = jax.jit(episode)(jax.random.PRNGKey(0))
+    return out
+
+
+def test_ramming_breaks_the_peg(ram_results):
+    broken, max_force = (np.asarray(x) for x in ram_results["breakable"])
+    assert broken.max() == 1.0, f"max force {max_force.max():.1f} N"
+    first = int(np.argmax(broken))
+    assert max_force[first] >= 10.0 and np.all(max_force[:first] < 10.0)
+
+
+def test_unbreakable_mode_never_breaks(ram_results):
+    broken, max_force = (np.asarray(x) for x in ram_results["unbreakable"])
+    assert max_force.max() >= 10.0, "the same ram exceeds the threshold"
+    assert broken.max() == 0.0
+
+
+def test_bad_configuration_raises_clear_errors(env):
+    with pytest.raises(ValueError, match="break_force.*-1"):
+        FPiHConfig(break_force=-1.0)
+    with pytest.raises(ValueError, match="unknown controller 'impedance'"):
+        FPiHConfig(control="impedance")
+    with pytest.raises(ValueError, match="hole_obs_noise_type"):
+        FPiHConfig(hole_obs_noise_type="laplace")
+    with pytest.raises(ValueError, match=r"action has shape \(4,\).*expects \(10,\)"):
+        env.step(env.reset(jax.random.PRNGKey(0)), jnp.zeros(4))
+
+
+def test_action_space_layout(env):
+    space = env.action_space
+    assert space.size == 10 and env.action_size == 10
+    assert space.describe()[:3] == ["select_force_x", "select_force_y", "select_force_z"]
+    np.testing.assert_array_equal(space.low[:3], 0.0)

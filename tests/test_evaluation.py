@@ -1,0 +1,57 @@
+"""Table 1 metrics from hand-built trajectories with known outcomes."""
+
+import numpy as np
+import pytest
+
+from match_jax.evaluation import episode_metrics, summarize
+
+T, DT = 6, 1.0 / 15.0
+
+
+def _traj(B):
+    return {
+        "success": np.zeros((T, B)), "broken": np.zeros((T, B)), "in_contact": np.zeros((T, B)),
+        "mean_force": np.zeros((T, B)), "position_axes": np.ones((T, B, 3)), "done_before": np.zeros((T, B)),
+    }
+
+
+def test_known_episodes():
+    traj = _traj(3)
+    # episode 0: contact from step 2 with 2 N, success at step 3, force selected on z while in contact
+    traj["in_contact"][2:, 0] = 1
+    traj["mean_force"][2:, 0] = 2.0
+    traj["success"][3:, 0] = 1
+    traj["position_axes"][2:, 0, 2] = 0.0
+    traj["position_axes"][0, 0, :] = 0.0  # all three axes force-selected on free step 0
+    # episode 1: contact at steps 1-2 (4 N, 6 N), breaks at step 2, later steps belong to no episode
+    traj["in_contact"][1:3, 1] = 1
+    traj["mean_force"][1:3, 1] = [4.0, 6.0]
+    traj["broken"][2, 1] = 1
+    traj["done_before"][3:, 1] = 1
+    traj["success"][4, 1] = 1  # after the episode ended: must not count
+    traj["mean_force"][4, 1] = 100.0
+    # episode 2: never touches
+    m = episode_metrics(traj, DT)
+    np.testing.assert_array_equal(m["success"], [1, 0, 0])
+    np.testing.assert_array_equal(m["broken"], [0, 1, 0])
+    assert m["time_to_success_s"][0] == pytest.approx(4 * DT)
+    assert np.isnan(m["time_to_success_s"][1]) and np.isnan(m["time_to_success_s"][2])
+    assert m["mean_force_n"][0] == pytest.approx(2.0)
+    assert m["mean_force_n"][1] == pytest.approx(5.0)
+    assert np.isnan(m["mean_force_n"][2])
+    assert m["force_selected_contact"][0] == pytest.approx(1.0 / 3.0)
+    assert m["force_selected_free"][0] == pytest.approx(0.5)  # free steps 0, 1: (1 + 0) / 2
+    s = summarize(m)
+    assert s["episodes"] == 3
+    assert s["success_rate"] == pytest.approx(1 / 3)
+    assert s["break_rate"] == pytest.approx(1 / 3)
+    assert s["mean_time_to_success_s"] == pytest.approx(4 * DT)
+    assert s["mean_force_n"] == pytest.approx(3.5)
+
+
+def test_success_after_break_does_not_count():
+    traj = _traj(1)
+    traj["broken"][1, 0] = 1
+    traj["success"][1:, 0] = 1  # same step as the break: the break came first within the step
+    m = episode_metrics(traj, DT)
+    assert m["success"][0] == 0 and m["broken"][0] == 1

@@ -1,0 +1,34 @@
+"""XLA flag handling and command-line validation."""
+
+import pytest
+
+from match_jax._xla import CPU_FLAG_VALUE, merged_xla_flags
+
+
+def test_xla_flags_are_merged_not_overridden():
+    assert merged_xla_flags(None) == CPU_FLAG_VALUE
+    assert merged_xla_flags("--xla_dump_to=/tmp/x") == f"--xla_dump_to=/tmp/x {CPU_FLAG_VALUE}"
+    mine = "--xla_cpu_use_fusion_emitters=true --foo=1"
+    assert merged_xla_flags(mine) == mine  # the user's own value wins
+
+
+def test_package_import_sets_the_flag():
+    import os
+
+    import match_jax  # noqa: F401
+
+    assert "--xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", "")
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--baseline", "spiral", "--episodes", "0"], "--episodes must be >= 1, got 0"),
+    (["--baseline", "spiral", "--noise-mm", "-1"], "--noise-mm must be a finite number >= 0, got -1.0"),
+    (["--baseline", "spiral", "--break-force", "-5"], "--break-force must be > 0 N, got -5.0"),
+    (["--baseline", "vices"], "invalid choice: 'vices'"),
+])
+def test_eval_cli_rejects_bad_input(argv, message, capsys):
+    import eval as eval_cli
+
+    with pytest.raises(SystemExit):
+        eval_cli.parse_args(argv)
+    assert message in capsys.readouterr().err
