@@ -47,7 +47,7 @@ def benchmark(batch_sizes, repeats: int, control: str = "hybrid") -> dict:
     env = FPiHEnv(FPiHConfig(control=control))
     substeps = env.config.control_substeps * env.config.physics_substeps
     reset, step = jax.jit(jax.vmap(env.reset)), jax.vmap(env.step)
-    action = env._initial_action()
+    action = env.neutral_action()
     m = env.mjx_model
     results = {"control": control, "device": str(jax.devices()[0]), "physics_steps_per_policy_step": substeps,
                "cpu_count": os.cpu_count(), "rows": []}

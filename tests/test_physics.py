@@ -13,7 +13,7 @@ from match_jax.sim import mjx
 def _rim_contact_hole_pos(env, depth=0.0003):
     """Hole pose putting the rim top `depth` above the peg tip at the home pose, 8 mm off the axis."""
     data = mujoco.MjData(env.mj_model)
-    data.qpos[:] = env._home_qpos
+    data.qpos[:] = env.home_qpos
     mujoco.mj_kinematics(env.mj_model, data)
     tip = data.site_xpos[env.ids.peg_tip_site]
     return np.array([tip[0] + 0.008, tip[1], tip[2] - env.hole_depth + depth])
@@ -39,7 +39,7 @@ def test_mjx_matches_mujoco_c(quiet_env, contact):
     """
     env = quiet_env
     model = env.mj_model
-    qpos = np.array(env._home_qpos)
+    qpos = np.array(env.home_qpos)
     qvel = np.zeros(7)
     data = _c_data(env, qpos, qvel)
     mujoco.mj_forward(model, data)
@@ -69,7 +69,7 @@ def test_controlled_step_matches_mjx_step(quiet_env):
     """sim.controlled_step (controller between velocity and actuation) equals mjx.step with that ctrl."""
     env = quiet_env
     m = env.mjx_model
-    d0 = mjx.make_data(m).replace(qpos=jnp.asarray(env._home_qpos), qvel=jnp.full(7, 0.1))
+    d0 = mjx.make_data(m).replace(qpos=jnp.asarray(env.home_qpos), qvel=jnp.full(7, 0.1))
     ctrl = jnp.linspace(-2.0, 2.0, 7)
 
     def via_split(d):
@@ -88,7 +88,7 @@ def test_peg_contact_force_matches_mujoco_c(quiet_env, press_experiment):
     """The env's wrist force equals the sum of MuJoCo C's contact forces on the environment."""
     env = quiet_env
     model = env.mj_model
-    data = _c_data(env, env._home_qpos, np.zeros(7))
+    data = _c_data(env, env.home_qpos, np.zeros(7))
     data.mocap_pos[0] = _rim_contact_hole_pos(env)  # peg tip 0.3 mm into the rim top
     mujoco.mj_forward(model, data)
     assert data.ncon > 0

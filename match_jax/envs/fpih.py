@@ -189,6 +189,11 @@ class FPiHEnv(BraxEnv):
         return layout
 
     @property
+    def home_qpos(self) -> np.ndarray:
+        """Joint angles (rad) with the EE at the nominal spawn pose: the IK start and posture reference."""
+        return self._home_qpos
+
+    @property
     def peg_tip_below_ee(self) -> float:
         """Distance (m) from the end-effector site down to the peg tip, along the hand axis."""
         return self._peg_tip_below_ee
@@ -241,7 +246,7 @@ class FPiHEnv(BraxEnv):
             "hole_yaw": hole_yaw,
             "hole_obs_offset": hole_obs_offset,
             "posture": posture,
-            "prev_action": self._initial_action(),
+            "prev_action": self.neutral_action(),
             "ee_force": zeros3,
             "contact_axes": zeros3,
             "in_contact": jnp.zeros(()),
@@ -266,7 +271,7 @@ class FPiHEnv(BraxEnv):
             return scale * jax.random.normal(key, shape)
         return scale * jax.random.uniform(key, shape, minval=-1.0, maxval=1.0)
 
-    def _initial_action(self) -> jax.Array:
+    def neutral_action(self) -> jax.Array:
         """The neutral action: zero, with the force-z target at 0 N (a = 1 maps to f_z_max = 0)."""
         action = jnp.zeros(self.action_size)
         if self.action_space.force:

@@ -12,12 +12,18 @@ import jax.numpy as jnp
 from brax.envs.base import State
 
 
+# Info keys that describe the finished transition (kept for the learner and the metrics); every
+# other key is replaced by the fresh episode's value when an env resets.
+TRANSITION_KEYS = ("truncation", "broken", "success", "engaged", "in_contact", "max_force", "mean_force")
+
+
 class AutoResetEnv:
     """Batched env: `reset(keys)` and `step(state, actions)` over a leading batch axis.
 
-    After `step`, `reward`, `done`, `metrics` and `info` describe the transition just taken; for envs
-    whose episode ended, `obs` and `pipeline_state` already belong to the next episode and the last
-    observation of the finished one is kept in `info['final_obs']`.
+    After `step`, `reward`, `done`, `metrics` and the TRANSITION_KEYS of `info` describe the
+    transition just taken; for envs whose episode ended, `obs`, `pipeline_state` and the rest of
+    `info` already belong to the next episode, and the last observation of the finished one is kept
+    in `info['final_obs']`.
     """
 
     def __init__(self, env):
@@ -47,7 +53,8 @@ class AutoResetEnv:
 
             info = dict(s.info)
             for key in fresh.info:
-                info[key] = pick(fresh.info[key], s.info[key])
+                if key not in TRANSITION_KEYS:
+                    info[key] = pick(fresh.info[key], s.info[key])
             return s.replace(pipeline_state=jax.tree_util.tree_map(pick, fresh.pipeline_state, s.pipeline_state),
                              obs=jax.tree_util.tree_map(pick, fresh.obs, s.obs), info=info)
 
