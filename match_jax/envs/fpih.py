@@ -18,10 +18,11 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from brax.envs.base import Env as BraxEnv
-from brax.envs.base import State
 
-from match_jax import sim
+from match_jax import sim  # first: imports mujoco.mjx quietly (it prints a notice when warp is absent)
+
+from brax.envs.base import Env as BraxEnv  # noqa: E402
+from brax.envs.base import State  # noqa: E402
 from match_jax.controllers.action_spaces import ActionConfig, ActionSpace, get_action_space
 from match_jax.controllers.osc import ControllerConfig, ControlTarget, hybrid_torque
 from match_jax.sim import mjx
