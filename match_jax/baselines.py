@@ -53,6 +53,11 @@ class SpiralConfig:
     force_filter: float = 0.3  # EMA weight of the new force observation
 
 
+def _position_action(delta, pos_scale: float, gain: float):
+    """Position action aiming `gain` times the remaining error `delta` (m) ahead, clipped to [-1, 1]."""
+    return jnp.clip(gain * delta / pos_scale, -1.0, 1.0)
+
+
 def initial_state() -> dict:
     """Policy state of the scripted policies: phase, steps in phase, filtered force, spiral angle,
     tip height at first contact and the commanded tip height (m above the observed hole top)."""
@@ -78,7 +83,7 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
         return -1.0 + 2.0 * (-force_n - f_lo) / (f_hi - f_lo)
 
     def to_position_action(delta):
-        return jnp.clip(config.approach_gain * delta / acfg.pos_scale, -1.0, 1.0)
+        return _position_action(delta, acfg.pos_scale, config.approach_gain)
 
     def policy(obs, state, key):
         del key
@@ -183,9 +188,9 @@ def make_pose_descent_policy(env, descend_speed: float = 0.005, hover_height: fl
         rel = obs["state"][layout["ee_rel_hole"]]
         height = rel[2] - tip_below_ee
         phase, t = state["phase"], state["steps_in_phase"]
-        xy = jnp.clip(approach_gain * -rel[:2] / acfg.pos_scale, -1.0, 1.0)
+        xy = _position_action(-rel[:2], acfg.pos_scale, approach_gain)
         z = jnp.where(phase == APPROACH,
-                      jnp.clip(approach_gain * (hover_height - height) / acfg.pos_scale, -1.0, 1.0),
+                      _position_action(hover_height - height, acfg.pos_scale, approach_gain),
                       -_speed_action(descend_speed, env))
         action = jnp.zeros(space.size).at[jnp.asarray(space.position)].set(jnp.concatenate([xy, z[None]]))
         aligned = (jnp.linalg.norm(rel[:2]) < 0.001) & (jnp.abs(height - hover_height) < 0.0015)

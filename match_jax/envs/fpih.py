@@ -24,7 +24,7 @@ from match_jax import sim  # first: imports mujoco.mjx quietly (it prints a noti
 from brax.envs.base import Env as BraxEnv  # noqa: E402
 from brax.envs.base import State  # noqa: E402
 from match_jax.controllers.action_spaces import ActionConfig, ActionSpace, get_action_space
-from match_jax.controllers.osc import ControllerConfig, ControlTarget, hybrid_torque
+from match_jax.controllers.osc import ControllerConfig, ControlTarget, hybrid_torque, orientation_error
 from match_jax.sim import mjx
 
 # Hand pointing down: EE x = world x, EE y = -world y, EE z = -world z (at zero yaw).
@@ -287,7 +287,7 @@ class FPiHEnv(BraxEnv):
         def body(qpos, _):
             d = mjx.com_pos(m, mjx.kinematics(m, data.replace(qpos=qpos)))
             ee_pos, ee_rot = d.site_xpos[ids.ee_site], d.site_xmat[ids.ee_site]
-            err = jnp.concatenate([pos - ee_pos, 0.5 * jnp.sum(jnp.cross(ee_rot.T, rot.T), axis=0)])
+            err = jnp.concatenate([pos - ee_pos, orientation_error(ee_rot, rot)])
             jacp, jacr = mjx.jac(m, d, ee_pos, ids.hand_body)
             jac = jnp.concatenate([jacp.T, jacr.T])
             dq = jac.T @ jnp.linalg.solve(jac @ jac.T + 1e-6 * jnp.eye(6), err)
