@@ -1,0 +1,87 @@
+"""SimBa actor and critic networks (Flax linen) for the asymmetric actor-critic.
+
+SimBa (Lee et al. 2024): inputs normalised by running mean/std (kept outside the network, see
+`match_jax.ppo`), Dense(H), N residual blocks x + Dense(H)(relu(Dense(4H)(LayerNorm(x)))), a final
+LayerNorm, then a linear head. The actor reads the policy observation ('state'); the critic reads
+the privileged observation ('privileged_state', plus the episode-time fraction).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from match_jax.distributions import INITIAL_SELECTION_BIAS, PolicyHead
+
+
+@dataclasses.dataclass(frozen=True)
+class NetworkConfig:
+    """Sizes of the SimBa trunks (paper: actor 2 x 256, critic 3 x 1024) and the actor's initial std."""
+
+    actor_hidden: int = 256
+    actor_blocks: int = 2
+    critic_hidden: int = 1024
+    critic_blocks: int = 3
+    initial_log_std: float = -0.7  # pre-tanh std ~0.5 at the start
+    min_log_std: float = -5.0
+    max_log_std: float = 1.0
+
+    def __post_init__(self):
+        for name in ("actor_hidden", "actor_blocks", "critic_hidden", "critic_blocks"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= (1 if "hidden" in name else 0)):
+                raise ValueError(f"NetworkConfig.{name} must be a positive integer, got {value!r}")
+        if not self.min_log_std < self.max_log_std:
+            raise ValueError(f"NetworkConfig needs min_log_std < max_log_std, got {self.min_log_std}, {self.max_log_std}")
+
+
+class SimBaTrunk(nn.Module):
+    """Dense(H) -> blocks x [x + Dense(H)(relu(Dense(4H)(LayerNorm(x))))] -> LayerNorm."""
+
+    hidden: int
+    blocks: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        x = nn.Dense(self.hidden, kernel_init=nn.initializers.orthogonal(1.0))(x)
+        for _ in range(self.blocks):
+            y = nn.LayerNorm()(x)
+            y = nn.relu(nn.Dense(4 * self.hidden, kernel_init=nn.initializers.he_normal())(y))
+            x = x + nn.Dense(self.hidden, kernel_init=nn.initializers.he_normal())(y)
+        return nn.LayerNorm()(x)
+
+
+class Actor(nn.Module):
+    """Policy head: means and selection logits from the observation; a state-independent log std.
+
+    The selection bias starts at log(0.07 / 0.93), so p(position) ~ 0.93 on every axis at first.
+    """
+
+    num_continuous: int
+    num_selections: int
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> PolicyHead:
+        cfg = self.config
+        x = SimBaTrunk(cfg.actor_hidden, cfg.actor_blocks)(obs)
+        mean = nn.Dense(self.num_continuous, kernel_init=nn.initializers.orthogonal(0.01))(x)
+        log_std = self.param("log_std", nn.initializers.constant(cfg.initial_log_std), (self.num_continuous,))
+        log_std = jnp.clip(log_std, cfg.min_log_std, cfg.max_log_std)
+        logits = nn.Dense(self.num_selections, kernel_init=nn.initializers.orthogonal(0.01),
+                          bias_init=nn.initializers.constant(INITIAL_SELECTION_BIAS))(x)
+        return PolicyHead(logits=logits, mean=mean, log_std=jnp.broadcast_to(log_std, mean.shape))
+
+
+class Critic(nn.Module):
+    """State value from the privileged observation."""
+
+    config: NetworkConfig
+
+    @nn.compact
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        x = SimBaTrunk(self.config.critic_hidden, self.config.critic_blocks)(obs)
+        return nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(x)[..., 0]

@@ -1,0 +1,351 @@
+"""Pure-JAX PPO for the fPiH env: rollout, GAE and the update epochs in one XLA program.
+
+In the style of PureJaxRL: `make_trainer(config, env)` returns pure functions over a `TrainState`
+pytree. One *iteration* = a `lax.scan` of `rollout_steps` env steps across `num_envs` envs, GAE,
+then `epochs` x `minibatches` clipped-surrogate updates. `Trainer.train_chunk` runs
+`iterations_per_chunk` iterations inside one jitted call and returns their metrics; it is vmapped
+over seeds (the leading axis of every TrainState leaf), so the paper's 5 seeds are one program.
+
+Asymmetric actor-critic: the actor reads the running-normalised policy observation; the critic the
+running-normalised privileged observation plus the episode-time fraction (the time limit is part of
+the state the critic needs). Time-outs bootstrap with the critic's value of the episode's last
+observation; breaks (and NaN resets) are terminal.
+
+MATCH's supervised selection loss: beta * sum over axes of BCE(p_force, psi), psi the env's per-axis
+contact label of the state that produced the action.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from brax.training.acme import running_statistics
+from brax.training.acme import specs
+
+from match_jax.distributions import METHODS, METHOD_CONTROL, Sample, make_distribution
+from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
+from match_jax.networks import Actor, Critic, NetworkConfig
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """Method, sizes and learning hyperparameters. Steps are env (policy) steps per seed."""
+
+    method: str = "match"  # 'pose' | 'vices' | 'hybrid' (Hybrid-Basic) | 'match'
+    ssl_coef: float = 1.0  # beta of the supervised selection loss; 0 = the no-SSL ablations
+    selection_in_ratio: bool = True  # MATCH: Bernoulli term in the PPO ratio (paper) or not (authors' code)
+    num_envs: int = 256
+    rollout_steps: int = 150
+    total_steps: int = 3_000_000
+    iterations_per_chunk: int = 4  # iterations per jitted call (between logging / checkpoints)
+    epochs: int = 4
+    minibatches: int = 8
+    learning_rate: float = 3e-4
+    adam_b1: float = 0.9
+    adam_b2: float = 0.999
+    adam_eps: float = 1e-5
+    max_grad_norm: float = 0.5  # per network (actor and critic are clipped separately)
+    gamma: float = 0.995
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    value_coef: float = 0.5
+    entropy_coef: float = 0.0
+    reward_scale: float = 0.25
+    normalize_advantages: bool = True
+    network: NetworkConfig = NetworkConfig()
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"unknown method {self.method!r}; choose one of {list(METHODS)}")
+        for name in ("num_envs", "rollout_steps", "total_steps", "iterations_per_chunk", "epochs", "minibatches"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if (self.num_envs * self.rollout_steps) % self.minibatches:
+            raise ValueError(f"num_envs * rollout_steps ({self.num_envs * self.rollout_steps}) must divide into "
+                             f"minibatches ({self.minibatches})")
+        for name in ("learning_rate", "max_grad_norm", "clip_eps", "reward_scale"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("gamma", "gae_lambda"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
+        for name in ("ssl_coef", "value_coef", "entropy_coef"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+
+    @property
+    def control(self) -> str:
+        return METHOD_CONTROL[self.method]
+
+    @property
+    def steps_per_iteration(self) -> int:
+        return self.num_envs * self.rollout_steps
+
+    @property
+    def num_iterations(self) -> int:
+        return -(-self.total_steps // self.steps_per_iteration)
+
+    @property
+    def uses_ssl(self) -> bool:
+        return self.method in ("hybrid", "match") and self.ssl_coef > 0
+
+
+class Transition(NamedTuple):
+    """One env step of the rollout, (T, B, ...) after the scan. Observations are normalised."""
+
+    policy_obs: jax.Array
+    critic_obs: jax.Array
+    final_critic_obs: jax.Array  # the finished episode's last observation where done
+    sample: Sample
+    log_prob: jax.Array
+    reward: jax.Array
+    done: jax.Array
+    truncation: jax.Array
+    contact_label: jax.Array  # per-axis contact of the state that produced the action (0/1)
+
+
+class TrainState(NamedTuple):
+    """Everything one seed's training carries (a pytree; a leading seed axis when vmapped)."""
+
+    params: dict
+    opt_state: Any
+    policy_stats: running_statistics.RunningStatisticsState
+    critic_stats: running_statistics.RunningStatisticsState
+    env_state: Any
+    episode_success: jax.Array  # (num_envs,) success seen so far in the running episode
+    key: jax.Array
+    iteration: jax.Array
+    env_steps: jax.Array
+
+
+class Trainer(NamedTuple):
+    """The pure functions of one configuration (see module docstring)."""
+
+    config: PPOConfig
+    env: FPiHEnv
+    init: Any  # key -> TrainState
+    train_chunk: Any  # TrainState -> (TrainState, metrics (iterations_per_chunk,))
+    policy_head: Any  # (params, policy_stats, obs['state']) -> PolicyHead
+    distribution: Any
+
+
+def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv:
+    """The fPiH env of a method; `env_config` (task settings) must use the method's controller."""
+    env_config = env_config or FPiHConfig(control=config.control)
+    if env_config.control != config.control:
+        raise ValueError(f"method {config.method!r} needs control={config.control!r}, env has {env_config.control!r}")
+    return FPiHEnv(env_config)
+
+
+def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
+    """Build the init and train_chunk functions (both pure, jit/vmap-able) for one seed."""
+    dist = make_distribution(config.method, config.selection_in_ratio)
+    space = dist.space
+    actor = Actor(dist.num_continuous, dist.num_selections, config.network)
+    critic = Critic(config.network)
+    benv = AutoResetEnv(env)
+    episode_steps = float(env.config.episode_steps)
+    obs_sizes = env.observation_size
+    policy_size = obs_sizes["state"][0]
+    critic_size = obs_sizes["privileged_state"][0] + 1
+
+    def critic_obs_raw(privileged, steps):
+        return jnp.concatenate([privileged, (steps / episode_steps)[..., None]], axis=-1)
+
+    def make_optimizer():
+        def one():
+            return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
+                               optax.adam(config.learning_rate, b1=config.adam_b1, b2=config.adam_b2,
+                                          eps=config.adam_eps))
+        return optax.multi_transform({"actor": one(), "critic": one()}, {"actor": "actor", "critic": "critic"})
+
+    optimizer = make_optimizer()
+
+    def normalize(x, stats):
+        return running_statistics.normalize(x, stats, max_abs_value=10.0)
+
+    def policy_head(params, policy_stats, policy_obs):
+        return actor.apply(params["actor"], normalize(policy_obs, policy_stats))
+
+    def init(key: jax.Array) -> TrainState:
+        k_actor, k_critic, k_env, key = jax.random.split(key, 4)
+        params = {"actor": actor.init(k_actor, jnp.zeros((1, policy_size))),
+                  "critic": critic.init(k_critic, jnp.zeros((1, critic_size)))}
+        env_state = benv.reset(jax.random.split(k_env, config.num_envs))
+        return TrainState(
+            params=params,
+            opt_state=optimizer.init(params),
+            policy_stats=running_statistics.init_state(specs.Array((policy_size,), jnp.float32)),
+            critic_stats=running_statistics.init_state(specs.Array((critic_size,), jnp.float32)),
+            env_state=env_state,
+            episode_success=jnp.zeros(config.num_envs),
+            key=key,
+            iteration=jnp.zeros((), jnp.int32),
+            env_steps=jnp.zeros((), jnp.int32),
+        )
+
+    # ------------------------------------------------------------------------------ rollout
+    def rollout(ts: TrainState, key: jax.Array):
+        def step(carry, step_key):
+            env_state, ep_success, p_acc, c_acc, stats = carry
+            raw_policy = env_state.obs["state"]
+            raw_critic = critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"])
+            policy_obs = normalize(raw_policy, ts.policy_stats)
+            head = actor.apply(ts.params["actor"], policy_obs)
+            sample = dist.sample(step_key, head)
+            log_prob = dist.log_prob(sample, head)
+            label = env_state.info["contact_axes"]
+            steps_before = env_state.info["steps"]
+            next_state = benv.step(env_state, dist.to_action(sample))
+            final_raw = critic_obs_raw(next_state.info["final_obs"]["privileged_state"], steps_before + 1)
+            done = next_state.done
+            success = next_state.info["success"]
+            broken = next_state.info["broken"]
+            ep_success = jnp.maximum(ep_success, success * (1.0 - broken))
+            stats = {
+                "episodes": stats["episodes"] + done.sum(),
+                "successes": stats["successes"] + (done * ep_success).sum(),
+                "breaks": stats["breaks"] + (done * broken).sum(),
+                "reward": stats["reward"] + next_state.reward.sum(),
+                "contact_steps": stats["contact_steps"] + next_state.info["in_contact"].sum(),
+            }
+            ep_success = jnp.where(done > 0, 0.0, ep_success)
+            p_acc = running_statistics.update(p_acc, raw_policy)
+            c_acc = running_statistics.update(c_acc, raw_critic)
+            transition = Transition(
+                policy_obs=policy_obs,
+                critic_obs=normalize(raw_critic, ts.critic_stats),
+                final_critic_obs=normalize(final_raw, ts.critic_stats),
+                sample=sample,
+                log_prob=log_prob,
+                reward=next_state.reward * config.reward_scale,
+                done=done,
+                truncation=next_state.info["truncation"],
+                contact_label=label,
+            )
+            return (next_state, ep_success, p_acc, c_acc, stats), transition
+
+        zero = jnp.zeros(())
+        stats0 = {k: zero for k in ("episodes", "successes", "breaks", "reward", "contact_steps")}
+        carry0 = (ts.env_state, ts.episode_success, ts.policy_stats, ts.critic_stats, stats0)
+        keys = jax.random.split(key, config.rollout_steps)
+        (env_state, ep_success, p_stats, c_stats, stats), traj = jax.lax.scan(step, carry0, keys)
+        last_critic = normalize(critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"]),
+                                ts.critic_stats)
+        return env_state, ep_success, p_stats, c_stats, stats, traj, last_critic
+
+    # ---------------------------------------------------------------------------------- GAE
+    def advantages(params, traj: Transition, last_critic):
+        values = critic.apply(params["critic"], traj.critic_obs)  # (T, B)
+        final_values = critic.apply(params["critic"], traj.final_critic_obs)
+        last_value = critic.apply(params["critic"], last_critic)
+        next_values = jnp.concatenate([values[1:], last_value[None]], axis=0)
+        # A finished episode bootstraps from its own last observation on a time-out, from 0 on a break.
+        bootstrap = jnp.where(traj.done > 0, final_values, next_values)
+        terminal = traj.done * (1.0 - traj.truncation)
+        deltas = traj.reward + config.gamma * bootstrap * (1.0 - terminal) - values
+
+        def backward(gae, x):
+            delta, done = x
+            gae = delta + config.gamma * config.gae_lambda * (1.0 - done) * gae
+            return gae, gae
+
+        _, adv = jax.lax.scan(backward, jnp.zeros_like(last_value), (deltas, traj.done), reverse=True)
+        return adv, adv + values
+
+    # ------------------------------------------------------------------------------- update
+    def loss_fn(params, batch: Transition, adv, returns):
+        head = actor.apply(params["actor"], batch.policy_obs)
+        log_prob = dist.log_prob(batch.sample, head)
+        log_ratio = log_prob - batch.log_prob
+        ratio = jnp.exp(log_ratio)
+        if config.normalize_advantages:
+            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+        pg_loss = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - config.clip_eps, 1 + config.clip_eps) * adv).mean()
+        values = critic.apply(params["critic"], batch.critic_obs)
+        value_loss = 0.5 * jnp.mean((values - returns) ** 2)
+        entropy = dist.entropy(head).mean()
+        total = pg_loss + config.value_coef * value_loss - config.entropy_coef * entropy
+        ssl_loss = jnp.zeros(())
+        p_force = jnp.zeros(())
+        if dist.num_selections:
+            bce = optax.sigmoid_binary_cross_entropy(head.logits, batch.contact_label)
+            ssl_loss = bce.sum(-1).mean()
+            p_force = jax.nn.sigmoid(head.logits).mean()
+            if config.uses_ssl:
+                total = total + config.ssl_coef * ssl_loss
+        metrics = {
+            "loss": total,
+            "policy_loss": pg_loss,
+            "value_loss": value_loss,
+            "entropy": entropy,
+            "ssl_loss": ssl_loss,
+            "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),
+            "clip_fraction": jnp.mean(jnp.abs(ratio - 1.0) > config.clip_eps),
+            "p_force": p_force,
+        }
+        return total, metrics
+
+    def update(params, opt_state, traj: Transition, adv, returns, key):
+        n = config.steps_per_iteration
+        flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[2:]), (traj, adv, returns))
+
+        def epoch(carry, epoch_key):
+            params, opt_state = carry
+            perm = jax.random.permutation(epoch_key, n)
+            shuffled = jax.tree_util.tree_map(
+                lambda x: x[perm].reshape((config.minibatches, n // config.minibatches) + x.shape[1:]), flat)
+
+            def minibatch(carry, mb):
+                params, opt_state = carry
+                grads, metrics = jax.grad(loss_fn, has_aux=True)(params, *mb)
+                updates, opt_state = optimizer.update(grads, opt_state, params)
+                return (optax.apply_updates(params, updates), opt_state), metrics
+
+            return jax.lax.scan(minibatch, (params, opt_state), shuffled)
+
+        (params, opt_state), metrics = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, config.epochs))
+        return params, opt_state, jax.tree_util.tree_map(jnp.mean, metrics)
+
+    # ----------------------------------------------------------------------------- iteration
+    def iteration(ts: TrainState, _):
+        key, k_roll, k_update = jax.random.split(ts.key, 3)
+        env_state, ep_success, p_stats, c_stats, stats, traj, last_critic = rollout(ts, k_roll)
+        adv, returns = advantages(ts.params, traj, last_critic)
+        params, opt_state, metrics = update(ts.params, ts.opt_state, traj, adv, returns, k_update)
+        episodes = stats["episodes"]
+        metrics.update(
+            episodes=episodes,
+            success_rate=jnp.where(episodes > 0, stats["successes"] / jnp.maximum(episodes, 1.0), jnp.nan),
+            break_rate=jnp.where(episodes > 0, stats["breaks"] / jnp.maximum(episodes, 1.0), jnp.nan),
+            mean_reward=stats["reward"] / config.steps_per_iteration,
+            contact_fraction=stats["contact_steps"] / config.steps_per_iteration,
+            action_std=jnp.exp(params["actor"]["params"]["log_std"]).mean(),
+        )
+        env_steps = ts.env_steps + config.steps_per_iteration
+        metrics.update(iteration=ts.iteration + 1, env_steps=env_steps)
+        ts = TrainState(params, opt_state, p_stats, c_stats, env_state, ep_success, key, ts.iteration + 1, env_steps)
+        return ts, metrics
+
+    def train_chunk(ts: TrainState):
+        return jax.lax.scan(iteration, ts, None, length=config.iterations_per_chunk)
+
+    return Trainer(config=config, env=env, init=init, train_chunk=train_chunk, policy_head=policy_head,
+                   distribution=dist)
+
+
+def deterministic_policy(trainer: Trainer, params: dict, policy_stats) -> Any:
+    """`policy(obs, policy_state, key) -> (action, policy_state)` for match_jax.evaluation: tanh of the
+    mean, force control where p_force > 0.5."""
+    dist = trainer.distribution
+
+    def policy(obs, policy_state, key):
+        head = trainer.policy_head(params, policy_stats, obs["state"])
+        return dist.to_action(dist.mode(head)), policy_state
+
+    return policy
