@@ -3,8 +3,9 @@
 In the style of PureJaxRL: `make_trainer(config, env)` returns pure functions over a `TrainState`
 pytree. One *iteration* = a `lax.scan` of `rollout_steps` env steps across `num_envs` envs, GAE,
 then `epochs` x `minibatches` clipped-surrogate updates. `Trainer.train_chunk` runs
-`iterations_per_chunk` iterations inside one jitted call and returns their metrics; it is vmapped
-over seeds (the leading axis of every TrainState leaf), so the paper's 5 seeds are one program.
+`iterations_per_chunk` iterations inside one jitted call and returns their metrics. Several seeds
+train in the same program: every TrainState leaf has a leading seed axis; the networks and updates
+are vmapped over it and the envs of all seeds step as one flat batch.
 
 Asymmetric actor-critic: the actor reads the running-normalised policy observation; the critic the
 running-normalised privileged observation plus the episode-time fraction (the time limit is part of
@@ -110,7 +111,7 @@ class Transition(NamedTuple):
 
 
 class TrainState(NamedTuple):
-    """Everything one seed's training carries (a pytree; a leading seed axis when vmapped)."""
+    """Everything training carries, as a pytree with a leading seed axis on every leaf."""
 
     params: dict
     opt_state: Any
@@ -128,8 +129,8 @@ class Trainer(NamedTuple):
 
     config: PPOConfig
     env: FPiHEnv
-    init: Any  # key -> TrainState
-    train_chunk: Any  # TrainState -> (TrainState, metrics (iterations_per_chunk,))
+    init: Any  # keys (num_seeds, 2) -> TrainState with a leading seed axis
+    train_chunk: Any  # TrainState -> (TrainState, metrics (iterations_per_chunk, num_seeds))
     policy_head: Any  # (params, policy_stats, obs['state']) -> PolicyHead
     distribution: Any
 
@@ -143,7 +144,7 @@ def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv
 
 
 def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
-    """Build the init and train_chunk functions (both pure, jit/vmap-able) for one seed."""
+    """Build the pure, jit-able init and train_chunk functions of one configuration."""
     dist = make_distribution(config.method, config.selection_in_ratio)
     space = dist.space
     actor = Actor(dist.num_continuous, dist.num_selections, config.network)
@@ -172,7 +173,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
     def policy_head(params, policy_stats, policy_obs):
         return actor.apply(params["actor"], normalize(policy_obs, policy_stats))
 
-    def init(key: jax.Array) -> TrainState:
+    def init_one(key: jax.Array) -> TrainState:
         k_actor, k_critic, k_env, key = jax.random.split(key, 4)
         params = {"actor": actor.init(k_actor, jnp.zeros((1, policy_size))),
                   "critic": critic.init(k_critic, jnp.zeros((1, critic_size)))}
@@ -190,53 +191,71 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
         )
 
     # ------------------------------------------------------------------------------ rollout
-    def rollout(ts: TrainState, key: jax.Array):
-        def step(carry, step_key):
+    # The rollout steps all seeds' envs as ONE flat batch of num_seeds * num_envs (the networks are
+    # vmapped over the seed axis): a vmap over seeds around the env would turn the auto-reset's
+    # lax.cond into a select that runs the reset on every step.
+    def seeds_first(x, num_seeds):
+        return x.reshape((num_seeds, x.shape[0] // num_seeds) + x.shape[1:])
+
+    def flat(x):
+        return x.reshape((x.shape[0] * x.shape[1],) + x.shape[2:])
+
+    def rollout(ts: TrainState, keys: jax.Array):
+        num_seeds = keys.shape[0]
+        v_normalize = jax.vmap(normalize)
+        v_actor = jax.vmap(actor.apply)
+
+        def step(carry, step_keys):
             env_state, ep_success, p_acc, c_acc, stats = carry
-            raw_policy = env_state.obs["state"]
-            raw_critic = critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"])
-            policy_obs = normalize(raw_policy, ts.policy_stats)
-            head = actor.apply(ts.params["actor"], policy_obs)
-            sample = dist.sample(step_key, head)
+            raw_policy = seeds_first(env_state.obs["state"], num_seeds)
+            raw_critic = seeds_first(critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"]),
+                                     num_seeds)
+            policy_obs = v_normalize(raw_policy, ts.policy_stats)
+            head = v_actor(ts.params["actor"], policy_obs)
+            sample = jax.vmap(dist.sample)(step_keys, head)
             log_prob = dist.log_prob(sample, head)
-            label = env_state.info["contact_axes"]
+            label = seeds_first(env_state.info["contact_axes"], num_seeds)
             steps_before = env_state.info["steps"]
-            next_state = benv.step(env_state, dist.to_action(sample))
+            next_state = benv.step(env_state, flat(dist.to_action(sample)))
             final_raw = critic_obs_raw(next_state.info["final_obs"]["privileged_state"], steps_before + 1)
-            done = next_state.done
-            success = next_state.info["success"]
-            broken = next_state.info["broken"]
+            done = seeds_first(next_state.done, num_seeds)
+            success = seeds_first(next_state.info["success"], num_seeds)
+            broken = seeds_first(next_state.info["broken"], num_seeds)
             ep_success = jnp.maximum(ep_success, success * (1.0 - broken))
             stats = {
-                "episodes": stats["episodes"] + done.sum(),
-                "successes": stats["successes"] + (done * ep_success).sum(),
-                "breaks": stats["breaks"] + (done * broken).sum(),
-                "reward": stats["reward"] + next_state.reward.sum(),
-                "contact_steps": stats["contact_steps"] + next_state.info["in_contact"].sum(),
+                "episodes": stats["episodes"] + done.sum(-1),
+                "successes": stats["successes"] + (done * ep_success).sum(-1),
+                "breaks": stats["breaks"] + (done * broken).sum(-1),
+                "reward": stats["reward"] + seeds_first(next_state.reward, num_seeds).sum(-1),
+                "contact_steps": stats["contact_steps"] + seeds_first(next_state.info["in_contact"], num_seeds).sum(-1),
             }
             ep_success = jnp.where(done > 0, 0.0, ep_success)
-            p_acc = running_statistics.update(p_acc, raw_policy)
-            c_acc = running_statistics.update(c_acc, raw_critic)
+            p_acc = jax.vmap(running_statistics.update)(p_acc, raw_policy)
+            c_acc = jax.vmap(running_statistics.update)(c_acc, raw_critic)
             transition = Transition(
                 policy_obs=policy_obs,
-                critic_obs=normalize(raw_critic, ts.critic_stats),
-                final_critic_obs=normalize(final_raw, ts.critic_stats),
+                critic_obs=v_normalize(raw_critic, ts.critic_stats),
+                final_critic_obs=v_normalize(seeds_first(final_raw, num_seeds), ts.critic_stats),
                 sample=sample,
                 log_prob=log_prob,
-                reward=next_state.reward * config.reward_scale,
+                reward=seeds_first(next_state.reward, num_seeds) * config.reward_scale,
                 done=done,
-                truncation=next_state.info["truncation"],
+                truncation=seeds_first(next_state.info["truncation"], num_seeds),
                 contact_label=label,
             )
             return (next_state, ep_success, p_acc, c_acc, stats), transition
 
-        zero = jnp.zeros(())
+        zero = jnp.zeros(num_seeds)
         stats0 = {k: zero for k in ("episodes", "successes", "breaks", "reward", "contact_steps")}
-        carry0 = (ts.env_state, ts.episode_success, ts.policy_stats, ts.critic_stats, stats0)
-        keys = jax.random.split(key, config.rollout_steps)
-        (env_state, ep_success, p_stats, c_stats, stats), traj = jax.lax.scan(step, carry0, keys)
-        last_critic = normalize(critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"]),
-                                ts.critic_stats)
+        env_state = jax.tree_util.tree_map(flat, ts.env_state)
+        carry0 = (env_state, ts.episode_success, ts.policy_stats, ts.critic_stats, stats0)
+        step_keys = jax.vmap(lambda k: jax.random.split(k, config.rollout_steps), out_axes=1)(keys)
+        (env_state, ep_success, p_stats, c_stats, stats), traj = jax.lax.scan(step, carry0, step_keys)
+        last_critic = v_normalize(
+            seeds_first(critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"]), num_seeds),
+            ts.critic_stats)
+        env_state = jax.tree_util.tree_map(lambda x: seeds_first(x, num_seeds), env_state)
+        traj = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), traj)  # (S, T, B, ...)
         return env_state, ep_success, p_stats, c_stats, stats, traj, last_critic
 
     # ---------------------------------------------------------------------------------- GAE
@@ -314,10 +333,11 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
 
     # ----------------------------------------------------------------------------- iteration
     def iteration(ts: TrainState, _):
-        key, k_roll, k_update = jax.random.split(ts.key, 3)
-        env_state, ep_success, p_stats, c_stats, stats, traj, last_critic = rollout(ts, k_roll)
-        adv, returns = advantages(ts.params, traj, last_critic)
-        params, opt_state, metrics = update(ts.params, ts.opt_state, traj, adv, returns, k_update)
+        """One PPO iteration for every seed (the leading axis of each TrainState leaf)."""
+        keys = jax.vmap(lambda k: jax.random.split(k, 3))(ts.key)
+        env_state, ep_success, p_stats, c_stats, stats, traj, last_critic = rollout(ts, keys[:, 1])
+        adv, returns = jax.vmap(advantages)(ts.params, traj, last_critic)
+        params, opt_state, metrics = jax.vmap(update)(ts.params, ts.opt_state, traj, adv, returns, keys[:, 2])
         episodes = stats["episodes"]
         metrics.update(
             episodes=episodes,
@@ -325,14 +345,20 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
             break_rate=jnp.where(episodes > 0, stats["breaks"] / jnp.maximum(episodes, 1.0), jnp.nan),
             mean_reward=stats["reward"] / config.steps_per_iteration,
             contact_fraction=stats["contact_steps"] / config.steps_per_iteration,
-            action_std=jnp.exp(params["actor"]["params"]["log_std"]).mean(),
+            action_std=jnp.exp(params["actor"]["params"]["log_std"]).mean(-1),
         )
         env_steps = ts.env_steps + config.steps_per_iteration
         metrics.update(iteration=ts.iteration + 1, env_steps=env_steps)
-        ts = TrainState(params, opt_state, p_stats, c_stats, env_state, ep_success, key, ts.iteration + 1, env_steps)
+        ts = TrainState(params, opt_state, p_stats, c_stats, env_state, ep_success, keys[:, 0], ts.iteration + 1,
+                        env_steps)
         return ts, metrics
 
+    def init(keys: jax.Array) -> TrainState:
+        """The TrainState of len(keys) seeds (leading seed axis on every leaf)."""
+        return jax.vmap(init_one)(keys)
+
     def train_chunk(ts: TrainState):
+        """`iterations_per_chunk` iterations; metrics are (iterations_per_chunk, num_seeds) arrays."""
         return jax.lax.scan(iteration, ts, None, length=config.iterations_per_chunk)
 
     return Trainer(config=config, env=env, init=init, train_chunk=train_chunk, policy_head=policy_head,

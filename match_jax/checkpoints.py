@@ -1,0 +1,90 @@
+"""Orbax checkpoints of a training run: the latest full TrainState and, per seed, the best policy.
+
+Layout under RUN_DIR/checkpoints/:
+- latest/<iteration>/: the whole TrainState of all seeds (params, optimiser, normaliser, env state,
+  keys), so `--resume` continues exactly where the run stopped. Only the newest is kept.
+- best_seed<i>/<iteration>/: seed i's actor/critic params and normaliser state at its highest
+  training success rate so far, with the rate in best_seed<i>/best.json.
+Orbax writes each checkpoint to a temporary directory and renames it when complete, so a run killed
+mid-save leaves the previous checkpoint intact.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+
+import jax
+import numpy as np
+import orbax.checkpoint as ocp
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint directory is missing, empty or unreadable (one-line message)."""
+
+
+def _manager(directory: pathlib.Path, read_only: bool = False) -> ocp.CheckpointManager:
+    options = ocp.CheckpointManagerOptions(max_to_keep=1, create=not read_only, read_only=read_only,
+                                           enable_async_checkpointing=False)
+    return ocp.CheckpointManager(directory.absolute(), options=options)
+
+
+def _to_saveable(tree) -> dict:
+    """The non-empty leaves of `tree` keyed by their flat index (orbax refuses zero-size arrays, and
+    mjx.Data has some); the structure comes back from the restore target."""
+    leaves = jax.tree_util.tree_leaves(jax.device_get(tree))
+    return {f"leaf{i:05d}": np.asarray(leaf) for i, leaf in enumerate(leaves) if np.size(leaf) > 0}
+
+
+def save(directory: pathlib.Path, step: int, tree) -> None:
+    """Save `tree` as checkpoint `step` under `directory`, keeping only the newest."""
+    with _manager(directory) as manager:
+        manager.save(int(step), args=ocp.args.StandardSave(_to_saveable(tree)), force=True)
+        manager.wait_until_finished()
+
+
+def latest_step(directory: pathlib.Path) -> int | None:
+    if not directory.is_dir():
+        return None
+    with _manager(directory, read_only=True) as manager:
+        return manager.latest_step()
+
+
+def restore(directory: pathlib.Path, target, step: int | None = None):
+    """Restore the checkpoint `step` (default: newest) of `directory` into the structure of `target`."""
+    step = latest_step(directory) if step is None else step
+    if step is None:
+        raise CheckpointError(f"no checkpoint found in {directory}")
+    leaves, treedef = jax.tree_util.tree_flatten(target)
+    abstract = {f"leaf{i:05d}": jax.ShapeDtypeStruct(np.shape(leaf), leaf.dtype)
+                for i, leaf in enumerate(leaves) if np.size(leaf) > 0}
+    try:
+        with _manager(directory, read_only=True) as manager:
+            saved = manager.restore(step, args=ocp.args.StandardRestore(abstract))
+        restored = [saved[f"leaf{i:05d}"] if np.size(leaf) > 0 else np.zeros(np.shape(leaf), leaf.dtype)
+                    for i, leaf in enumerate(leaves)]
+        return jax.tree_util.tree_unflatten(treedef, [jax.numpy.asarray(x) for x in restored])
+    except Exception as err:  # orbax raises many types for damaged files; report one line
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise CheckpointError(f"checkpoint {directory / str(step)} is unreadable ({type(err).__name__}: "
+                              f"{first[:300]})") from None
+
+
+def best_dir(run_dir: pathlib.Path, seed_index: int) -> pathlib.Path:
+    return run_dir / "checkpoints" / f"best_seed{seed_index}"
+
+
+def latest_dir(run_dir: pathlib.Path) -> pathlib.Path:
+    return run_dir / "checkpoints" / "latest"
+
+
+def read_best_record(run_dir: pathlib.Path, seed_index: int) -> dict | None:
+    path = best_dir(run_dir, seed_index) / "best.json"
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def write_best_record(run_dir: pathlib.Path, seed_index: int, record: dict) -> None:
+    path = best_dir(run_dir, seed_index) / "best.json"
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(record, indent=2))
+    tmp.replace(path)

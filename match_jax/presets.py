@@ -1,0 +1,33 @@
+"""Training presets. A preset sets sizes, step budget and learning hyperparameters only: it never
+changes the task or the physics (geometry, contact, physics rate, break threshold, noise), so a cpu
+run and a paper run solve the same task.
+
+- `paper`: 256 envs per seed, 150-step rollouts (one episode), 3M env steps per seed, SimBa actor
+  2 x 256 and critic 3 x 1024 (paper). For GPUs.
+- `cpu`: sized for a 2-core CPU (measured, README): 128 envs per seed, smaller SimBa networks
+  (actor 1 x 128, critic 2 x 128), 5M env steps budget.
+- `tiny`: a few envs and short rollouts, for smoke tests; it learns nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from match_jax.networks import NetworkConfig
+from match_jax.ppo import PPOConfig
+
+PRESETS: dict[str, PPOConfig] = {
+    "paper": PPOConfig(num_envs=256, rollout_steps=150, total_steps=3_000_000, iterations_per_chunk=2,
+                       minibatches=8, network=NetworkConfig(256, 2, 1024, 3)),
+    "cpu": PPOConfig(num_envs=128, rollout_steps=150, total_steps=5_000_000, iterations_per_chunk=4,
+                     minibatches=8, network=NetworkConfig(128, 1, 128, 2)),
+    "tiny": PPOConfig(num_envs=4, rollout_steps=8, total_steps=64, iterations_per_chunk=1, epochs=2,
+                      minibatches=2, network=NetworkConfig(16, 1, 16, 1)),
+}
+
+
+def get_preset(name: str, **overrides) -> PPOConfig:
+    """The preset `name` with some fields replaced (e.g. method='pose', total_steps=10**6)."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
+    return dataclasses.replace(PRESETS[name], **overrides)

@@ -1,0 +1,309 @@
+"""The host side of training: run directory, jitted chunks, logging, checkpoints, resume.
+
+    from match_jax.training import RunSpec, train
+    from match_jax.presets import get_preset
+    summary = train(RunSpec(ppo=get_preset("cpu", method="match"), num_seeds=1), "runs/match")
+
+A run directory holds `config.json` (the resolved RunSpec), `metrics.jsonl` (one row per iteration
+and seed), `metrics.csv` (the same, written at the end of each chunk) and `checkpoints/` (see
+`match_jax.checkpoints`). Between jitted chunks of `iterations_per_chunk` PPO iterations the host
+logs, updates the progress bar and saves checkpoints; an interrupted run resumes from its latest
+checkpoint and loses at most one chunk of work.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import pathlib
+import time
+
+import jax
+import numpy as np
+
+from match_jax import checkpoints
+from match_jax.controllers.action_spaces import ActionConfig
+from match_jax.controllers.osc import ControllerConfig
+from match_jax.envs import FPiHConfig
+from match_jax.networks import NetworkConfig
+from match_jax.ppo import PPOConfig, Trainer, TrainState, make_env, make_trainer
+
+LOGGED = ("iteration", "env_steps", "success_rate", "break_rate", "episodes", "mean_reward", "contact_fraction",
+          "loss", "policy_loss", "value_loss", "ssl_loss", "entropy", "approx_kl", "clip_fraction", "p_force",
+          "action_std")
+
+
+class RunError(ValueError):
+    """Bad run directory or resume request (one-line message)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """Everything that defines a run: the learner, the task, how many seeds and the base seed."""
+
+    ppo: PPOConfig = PPOConfig()
+    env: FPiHConfig | None = None  # None: FPiHConfig(control=ppo.control) (the paper's task)
+    num_seeds: int = 1
+    seed: int = 0
+    preset: str = ""
+
+    def __post_init__(self):
+        if not (isinstance(self.num_seeds, int) and self.num_seeds >= 1):
+            raise ValueError(f"num_seeds must be an integer >= 1, got {self.num_seeds!r}")
+        if self.env is None:
+            object.__setattr__(self, "env", FPiHConfig(control=self.ppo.control))
+        if self.env.control != self.ppo.control:
+            raise ValueError(f"method {self.ppo.method!r} needs env control {self.ppo.control!r}, "
+                             f"got {self.env.control!r}")
+
+    def to_json(self) -> str:
+        return json.dumps(dataclasses.asdict(self), indent=2, allow_nan=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> "RunSpec":
+        return _from_dict(cls, json.loads(text))
+
+
+_NESTED = {"ppo": PPOConfig, "env": FPiHConfig, "network": NetworkConfig, "controller": ControllerConfig,
+           "actions": ActionConfig}
+
+
+def _from_dict(cls, data: dict):
+    kwargs = {}
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key, value in data.items():
+        if key not in names:
+            continue  # a field of an older version: ignore
+        if key in _NESTED and isinstance(value, dict):
+            value = _from_dict(_NESTED[key], value)
+        elif isinstance(value, list):
+            value = tuple(tuple(v) if isinstance(v, list) else v for v in value)
+        kwargs[key] = value
+    return cls(**kwargs)
+
+
+def load_spec(run_dir: str | pathlib.Path) -> RunSpec:
+    path = pathlib.Path(run_dir) / "config.json"
+    if not path.exists():
+        raise RunError(f"{run_dir} is not a run directory (no config.json)")
+    try:
+        return RunSpec.from_json(path.read_text())
+    except (ValueError, TypeError) as err:
+        raise RunError(f"{path} is not a valid run config: {err}") from None
+
+
+def shard_envs(state: TrainState) -> TrainState:
+    """Place the env axis (axis 1 of env_state leaves) across all local devices; the rest is replicated.
+
+    A no-op on one device. The jitted chunk then runs SPMD over the devices (jax.sharding)."""
+    devices = jax.devices()
+    num_envs = state.episode_success.shape[1]
+    if len(devices) == 1 or num_envs % len(devices):
+        return state
+    mesh = jax.sharding.Mesh(np.array(devices), ("envs",))
+    P = jax.sharding.PartitionSpec
+    by_env = jax.sharding.NamedSharding(mesh, P(None, "envs"))
+    replicated = jax.sharding.NamedSharding(mesh, P())
+
+    def place(x, sharding):
+        return jax.device_put(x, sharding if x.ndim >= 2 else replicated)
+
+    env_state = jax.tree_util.tree_map(lambda x: place(x, by_env), state.env_state)
+    rest = jax.tree_util.tree_map(lambda x: jax.device_put(x, replicated), state._replace(env_state=None))
+    return rest._replace(env_state=env_state, episode_success=place(state.episode_success, by_env))
+
+
+class Run:
+    """A run directory with its trainer and compiled functions (used by `train` and the tests)."""
+
+    def __init__(self, spec: RunSpec, run_dir: str | pathlib.Path):
+        self.spec = spec
+        self.dir = pathlib.Path(run_dir)
+        self.env = make_env(spec.ppo, spec.env)
+        self.trainer: Trainer = make_trainer(spec.ppo, self.env)
+        self._init = jax.jit(self.trainer.init)
+        self._chunk = jax.jit(self.trainer.train_chunk, donate_argnums=0)
+
+    def initial_state(self) -> TrainState:
+        keys = jax.random.split(jax.random.PRNGKey(self.spec.seed), self.spec.num_seeds)
+        return self._init(keys)
+
+    def chunk(self, state: TrainState):
+        return self._chunk(state)
+
+    def restore_latest(self) -> TrainState:
+        target = jax.eval_shape(self.trainer.init,
+                                jax.ShapeDtypeStruct((self.spec.num_seeds, 2), jax.numpy.uint32))
+        return checkpoints.restore(checkpoints.latest_dir(self.dir), target)
+
+    def save_latest(self, state: TrainState) -> None:
+        checkpoints.save(checkpoints.latest_dir(self.dir), int(np.asarray(state.iteration)[0]), state)
+
+    def policy_target(self):
+        """Abstract structure of one seed's saved policy: {'params', 'policy_stats', 'critic_stats'}."""
+        target = jax.eval_shape(self.trainer.init, jax.ShapeDtypeStruct((1, 2), jax.numpy.uint32))
+        return jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), _policy_of(target))
+
+
+def _policy_of(state: TrainState) -> dict:
+    return {"params": state.params, "policy_stats": state.policy_stats, "critic_stats": state.critic_stats}
+
+
+def _seed_slice(tree, i: int):
+    return jax.tree_util.tree_map(lambda x: x[i], tree)
+
+
+def _rows(metrics: dict, seed_base: int) -> list[dict]:
+    """One dict per (iteration, seed) from chunk metrics of shape (iterations, seeds)."""
+    metrics = {k: np.asarray(v) for k, v in jax.device_get(metrics).items()}
+    iterations, seeds = metrics["iteration"].shape
+    rows = []
+    for t in range(iterations):
+        for s in range(seeds):
+            row = {"seed_index": s, "seed": seed_base + s}
+            for k in LOGGED:
+                v = float(metrics[k][t, s])
+                row[k] = int(v) if k in ("iteration", "env_steps", "episodes") else (None if math.isnan(v) else v)
+            rows.append(row)
+    return rows
+
+
+def _truncate_metrics(path: pathlib.Path, last_iteration: int) -> None:
+    if not path.exists():
+        return
+    kept = [line for line in path.read_text().splitlines()
+            if line.strip() and json.loads(line)["iteration"] <= last_iteration]
+    path.write_text("".join(line + "\n" for line in kept))
+
+
+def _write_csv(jsonl: pathlib.Path, csv_path: pathlib.Path) -> None:
+    rows = [json.loads(line) for line in jsonl.read_text().splitlines() if line.strip()]
+    if not rows:
+        return
+    with csv_path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def read_metrics(run_dir: str | pathlib.Path) -> list[dict]:
+    """The rows of a run's metrics.jsonl."""
+    path = pathlib.Path(run_dir) / "metrics.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+
+
+def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = False, progress: bool = True,
+          max_chunks: int | None = None) -> dict:
+    """Train (or, with resume=True, continue) a run in `run_dir`; returns a summary dict.
+
+    With resume the spec is read from run_dir/config.json (`spec` may be None). `max_chunks` stops
+    after that many chunks (tests, time-boxed runs); the run can be resumed later.
+    """
+    run_dir = pathlib.Path(run_dir)
+    latest = checkpoints.latest_dir(run_dir)
+    if resume:
+        if not run_dir.is_dir():
+            raise RunError(f"cannot resume: {run_dir} does not exist")
+        spec = load_spec(run_dir)
+        if checkpoints.latest_step(latest) is None:
+            raise RunError(f"cannot resume: no checkpoint in {latest}")
+    else:
+        if spec is None:
+            raise RunError("train() needs a RunSpec unless resume=True")
+        if checkpoints.latest_step(latest) is not None:
+            raise RunError(f"{run_dir} already holds a run; pass resume=True (--resume) or choose another directory")
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.json").write_text(spec.to_json())
+        (run_dir / "metrics.jsonl").write_text("")
+
+    run = Run(spec, run_dir)
+    ppo = spec.ppo
+    if resume:
+        state = run.restore_latest()
+        _truncate_metrics(run_dir / "metrics.jsonl", int(np.asarray(state.iteration)[0]))
+    else:
+        state = run.initial_state()
+    state = shard_envs(state)
+    best = [(checkpoints.read_best_record(run_dir, i) or {}).get("success_rate", -1.0) for i in range(spec.num_seeds)]
+
+    chunks_total = -(-ppo.num_iterations // ppo.iterations_per_chunk)
+    steps_per_chunk = ppo.steps_per_iteration * ppo.iterations_per_chunk
+    done_chunks = int(np.asarray(state.iteration)[0]) // ppo.iterations_per_chunk
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=chunks_total * steps_per_chunk, initial=done_chunks * steps_per_chunk, unit="step",
+                   unit_scale=True, desc=f"{ppo.method} x{spec.num_seeds} seeds", dynamic_ncols=True)
+    start, steps_this_session, chunks_run = time.time(), 0, 0
+    last_rows: list[dict] = []
+    try:
+        while done_chunks < chunks_total and (max_chunks is None or chunks_run < max_chunks):
+            state, metrics = run.chunk(state)
+            rows = _rows(metrics, spec.seed)
+            with (run_dir / "metrics.jsonl").open("a") as f:
+                for row in rows:
+                    row["wall_clock_s"] = round(time.time() - start, 2)
+                    f.write(json.dumps(row) + "\n")
+            done_chunks += 1
+            chunks_run += 1
+            steps_this_session += steps_per_chunk * spec.num_seeds
+            last_rows = rows[-spec.num_seeds:]
+            iteration = last_rows[0]["iteration"]
+            for i, row in enumerate(last_rows):
+                # A chunk in which no episode ended scores -0.5: every seed gets a best checkpoint.
+                rate = -0.5 if row["success_rate"] is None else row["success_rate"]
+                if rate >= best[i]:
+                    best[i] = rate
+                    checkpoints.save(checkpoints.best_dir(run_dir, i), iteration,
+                                     _seed_slice(_policy_of(state), i))
+                    checkpoints.write_best_record(run_dir, i, {"iteration": iteration, "env_steps": row["env_steps"],
+                                                               "success_rate": rate, "break_rate": row["break_rate"]})
+            run.save_latest(state)
+            _write_csv(run_dir / "metrics.jsonl", run_dir / "metrics.csv")
+            if bar is not None:
+                bar.update(steps_per_chunk)
+                rate = steps_this_session / max(time.time() - start, 1e-9)
+                bar.set_postfix(success=_fmt_mean(last_rows, "success_rate"), brk=_fmt_mean(last_rows, "break_rate"),
+                                env_steps_s=f"{rate:,.0f}")
+    except KeyboardInterrupt:
+        if bar is not None:
+            bar.close()
+        print(f"interrupted; the latest checkpoint is kept: resume with --resume --out {run_dir}")
+        raise
+    if bar is not None:
+        bar.close()
+    elapsed = time.time() - start
+    return {
+        "run_dir": str(run_dir),
+        "iterations": int(np.asarray(state.iteration)[0]),
+        "env_steps_per_seed": int(np.asarray(state.env_steps)[0]),
+        "finished": done_chunks >= chunks_total,
+        "wall_clock_s": elapsed,
+        "env_steps_per_s": steps_this_session / max(elapsed, 1e-9),
+        "last_success_rate": [r["success_rate"] for r in last_rows],
+        "last_break_rate": [r["break_rate"] for r in last_rows],
+        "best_success_rate": best,
+    }
+
+
+def _fmt_mean(rows: list[dict], key: str) -> str:
+    values = [r[key] for r in rows if r[key] is not None]
+    return f"{100 * sum(values) / len(values):.0f}%" if values else "-"
+
+
+def load_policy(run_dir: str | pathlib.Path, seed_index: int, which: str = "best") -> tuple[Run, dict]:
+    """(Run, {'params', 'policy_stats', 'critic_stats'}) of one seed, from its best or the latest checkpoint."""
+    run_dir = pathlib.Path(run_dir)
+    spec = load_spec(run_dir)
+    if not 0 <= seed_index < spec.num_seeds:
+        raise RunError(f"seed index {seed_index} out of range: {run_dir} has {spec.num_seeds} seeds")
+    run = Run(spec, run_dir)
+    if which == "best":
+        return run, checkpoints.restore(checkpoints.best_dir(run_dir, seed_index), run.policy_target())
+    if which == "latest":
+        state = run.restore_latest()
+        return run, _seed_slice(_policy_of(state), seed_index)
+    raise RunError(f"checkpoint must be 'best' or 'latest', got {which!r}")
+
