@@ -135,6 +135,14 @@ class Trainer(NamedTuple):
     distribution: Any
 
 
+def selection_loss(logits: jax.Array, contact_label: jax.Array) -> jax.Array:
+    """Supervised selection loss (before beta): sum over axes of BCE(p_force, psi), mean over the batch.
+
+    logits: (..., 3) selection logits (log-odds of force control); contact_label: (..., 3) 0/1 per axis.
+    """
+    return optax.sigmoid_binary_cross_entropy(logits, contact_label).sum(-1).mean()
+
+
 def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv:
     """The fPiH env of a method; `env_config` (task settings) must use the method's controller."""
     env_config = env_config or FPiHConfig(control=config.control)
@@ -293,8 +301,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
         ssl_loss = jnp.zeros(())
         p_force = jnp.zeros(())
         if dist.num_selections:
-            bce = optax.sigmoid_binary_cross_entropy(head.logits, batch.contact_label)
-            ssl_loss = bce.sum(-1).mean()
+            ssl_loss = selection_loss(head.logits, batch.contact_label)
             p_force = jax.nn.sigmoid(head.logits).mean()
             if config.uses_ssl:
                 total = total + config.ssl_coef * ssl_loss
