@@ -1,11 +1,15 @@
-"""Evaluate a scripted baseline on the fragile peg-in-hole env: success, break, time, force.
+"""Evaluate trained policies (a run directory) or a scripted baseline on fragile peg-in-hole.
 
+    python eval.py runs/match_cpu --episodes 100 --json results/match_eval.json
+    python eval.py runs/match_cpu --noise-sweep 0,1,2.5,5,7.5 --episodes 500     # uniform +-X mm
+    python eval.py runs/match_cpu --unbreakable --checkpoint latest
     python eval.py --baseline spiral --episodes 100 --noise-mm 1 --json results/spiral.json
-    python eval.py --baseline pose --episodes 100 --noise-mm 2.5
 
-Writes JSON with episodes, success_rate, break_rate, mean_time_to_success_s, mean_force_n (mean
-force magnitude over in-contact steps) and prints a table. Evaluating trained runs (RUN_DIR) comes
-with the training code.
+A run is evaluated for every seed with the deterministic policy (tanh of the mean, force control
+where p_force > 0.5), all seeds and episodes in one jitted batch, at the training noise unless
+--noise-mm / --noise-sweep say otherwise. Printed and written (JSON): per seed and mean +- standard
+error over seeds of success %, break %, time to success (s), mean contact force (N) and, for hybrid
+policies, the force-selection rate on in-contact and on free-space steps.
 """
 
 from __future__ import annotations
@@ -23,23 +27,43 @@ import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--baseline", choices=["spiral", "pose"], required=True, help="scripted policy")
-    parser.add_argument("--episodes", type=int, default=100, help="number of episodes (default 100)")
-    parser.add_argument("--noise-mm", type=float, default=1.0,
-                        help="hole-position observation noise in mm (sd for gaussian, half-width for uniform)")
-    parser.add_argument("--noise-type", choices=["gaussian", "uniform"], default="gaussian")
-    parser.add_argument("--break-force", type=float, default=10.0, help="break threshold in N (default 10)")
+    parser.add_argument("run_dir", nargs="?", type=pathlib.Path, help="training run directory to evaluate")
+    parser.add_argument("--baseline", choices=["spiral", "pose"], help="evaluate a scripted policy instead")
+    parser.add_argument("--episodes", type=int, default=100, help="episodes (per seed for a run; default 100)")
+    parser.add_argument("--noise-mm", type=float, default=None,
+                        help="hole-position observation noise in mm (sd for gaussian, half-width for uniform); "
+                             "default: a run's training noise, 1 mm for baselines")
+    parser.add_argument("--noise-type", choices=["gaussian", "uniform"], default=None,
+                        help="default gaussian; uniform with --noise-sweep (the paper's sweep)")
+    parser.add_argument("--noise-sweep", type=str, default=None, help="comma-separated noise levels in mm")
+    parser.add_argument("--checkpoint", choices=["best", "latest"], default="best", help="which policy of a run")
+    parser.add_argument("--break-force", type=float, default=None,
+                        help="break threshold in N (default: a run's training value; 10 for baselines)")
     parser.add_argument("--unbreakable", action="store_true", help="no break threshold")
     parser.add_argument("--batch", type=int, default=0, help="episodes per jitted batch (default: all)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=pathlib.Path, default=None, help="write the results here")
     args = parser.parse_args(argv)
+    if (args.run_dir is None) == (args.baseline is None):
+        parser.error("give either a RUN_DIR or --baseline spiral|pose")
     if args.episodes < 1:
         parser.error(f"--episodes must be >= 1, got {args.episodes}")
-    if not (args.noise_mm >= 0 and math.isfinite(args.noise_mm)):
+    if args.noise_mm is not None and not (args.noise_mm >= 0 and math.isfinite(args.noise_mm)):
         parser.error(f"--noise-mm must be a finite number >= 0, got {args.noise_mm}")
-    if not args.break_force > 0:
+    if args.noise_sweep is not None:
+        if args.noise_mm is not None:
+            parser.error("--noise-mm and --noise-sweep exclude each other")
+        try:
+            args.noise_levels = [float(x) for x in args.noise_sweep.split(",") if x.strip()]
+        except ValueError:
+            parser.error(f"--noise-sweep must be comma-separated numbers in mm, got {args.noise_sweep!r}")
+        bad = [x for x in args.noise_levels if not (x >= 0 and math.isfinite(x))]
+        if bad or not args.noise_levels:
+            parser.error(f"--noise-sweep levels must be finite numbers >= 0, got {args.noise_sweep!r}")
+    if args.break_force is not None and not args.break_force > 0:
         parser.error(f"--break-force must be > 0 N, got {args.break_force}")
+    if args.run_dir is None and args.break_force is None:
+        args.break_force = 10.0
     if args.batch < 0:
         parser.error(f"--batch must be >= 0, got {args.batch}")
     return args
@@ -94,13 +118,40 @@ def format_table(summary: dict) -> str:
     return "\n".join([title] + [f"  {k:<{width}}  {v:>8}" for k, v in rows])
 
 
+def evaluate_run_dir(args) -> dict:
+    """Evaluate a run at one noise level or over a sweep; returns the JSON document."""
+    from match_jax.run_eval import check_run_dir, evaluate_run, format_result
+
+    check_run_dir(args.run_dir)
+    break_force = math.inf if args.unbreakable else args.break_force
+    levels = args.noise_levels if args.noise_sweep is not None else [args.noise_mm]
+    noise_type = args.noise_type or ("uniform" if args.noise_sweep is not None else None)
+    results = []
+    for level in levels:
+        result = evaluate_run(args.run_dir, args.episodes, noise_mm=level, noise_type=noise_type,
+                              break_force=break_force, checkpoint=args.checkpoint, seed=1000 + args.seed)
+        print(format_result(result))
+        results.append(result)
+    return results[0] if args.noise_sweep is None else {"noise_sweep": results}
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
     start = time.time()
-    summary = evaluate_baseline(args.baseline, args.episodes, args.noise_mm / 1000.0, args.noise_type,
-                                math.inf if args.unbreakable else args.break_force, args.seed, args.batch)
+    if args.run_dir is not None:
+        from match_jax.checkpoints import CheckpointError
+        from match_jax.training import RunError
+        try:
+            summary = evaluate_run_dir(args)
+        except (RunError, CheckpointError) as err:
+            print(f"error: {err}", file=sys.stderr)
+            return 2
+    else:
+        noise_mm = 1.0 if args.noise_mm is None else args.noise_mm
+        summary = evaluate_baseline(args.baseline, args.episodes, noise_mm / 1000.0, args.noise_type or "gaussian",
+                                    math.inf if args.unbreakable else args.break_force, args.seed, args.batch)
+        print(format_table(summary))
     summary["wall_clock_s"] = round(time.time() - start, 1)
-    print(format_table(summary))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(summary, indent=2, allow_nan=True))

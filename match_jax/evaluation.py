@@ -19,11 +19,13 @@ RECORDED = ("success", "engaged", "broken", "in_contact", "mean_force", "max_for
             "position_axes", "contact_axes", "truncation")
 
 
-def make_rollout(env, policy: Policy, num_steps: int | None = None):
-    """A jittable function (keys (B, 2), policy_state batch) -> trajectory dict of (T, B, ...) arrays.
+def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_policy_state: bool = True):
+    """A jittable function (keys (B, 2), policy_state) -> trajectory dict of (T, B, ...) arrays.
 
     Each env runs exactly one episode of `num_steps` (default env.config.episode_steps) policy steps
     from `env.reset(key)`; steps after the episode ended (break) are marked by `done_before`.
+    `policy_state` has a leading batch axis, or (batched_policy_state=False) is shared by all envs,
+    e.g. a learned policy's parameters.
     """
     num_steps = num_steps or env.config.episode_steps
 
@@ -45,7 +47,8 @@ def make_rollout(env, policy: Policy, num_steps: int | None = None):
         return traj
 
     def rollout(keys, policy_states):
-        traj = jax.vmap(one_env)(keys, policy_states)  # (B, T, ...)
+        in_axes = (0, 0) if batched_policy_state else (0, None)
+        traj = jax.vmap(one_env, in_axes=in_axes)(keys, policy_states)  # (B, T, ...)
         return jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), traj)
 
     return rollout
@@ -108,3 +111,12 @@ def summarize(metrics: dict[str, np.ndarray]) -> dict[str, float]:
         "force_selected_contact": nanmean(metrics["force_selected_contact"]),
         "force_selected_free": nanmean(metrics["force_selected_free"]),
     }
+
+
+def mean_and_standard_error(values) -> tuple[float, float]:
+    """Mean and standard error over seeds (NaN entries dropped; SE is NaN with fewer than 2 values)."""
+    x = np.asarray([v for v in values if v is not None and not np.isnan(v)], np.float64)
+    if len(x) == 0:
+        return float("nan"), float("nan")
+    se = float(np.std(x, ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
+    return float(np.mean(x)), se

@@ -143,6 +143,29 @@ def selection_loss(logits: jax.Array, contact_label: jax.Array) -> jax.Array:
     return optax.sigmoid_binary_cross_entropy(logits, contact_label).sum(-1).mean()
 
 
+def generalized_advantages(reward, value, final_value, last_value, done, truncation, gamma: float,
+                           gae_lambda: float) -> tuple[jax.Array, jax.Array]:
+    """GAE over a (T, B) rollout that may cross episode boundaries; returns (advantages, returns).
+
+    value[t]: V(s_t); last_value: V(s_T) after the last step. Where done[t], the episode ended at step
+    t: on a time-out (truncation[t] = 1) it bootstraps from final_value[t], the value of that
+    episode's last observation; on a termination (a break) from 0. The advantage recursion never
+    crosses an episode boundary.
+    """
+    next_value = jnp.concatenate([value[1:], last_value[None]], axis=0)
+    bootstrap = jnp.where(done > 0, final_value, next_value)
+    terminal = done * (1.0 - truncation)
+    deltas = reward + gamma * bootstrap * (1.0 - terminal) - value
+
+    def backward(gae, x):
+        delta, d = x
+        gae = delta + gamma * gae_lambda * (1.0 - d) * gae
+        return gae, gae
+
+    _, adv = jax.lax.scan(backward, jnp.zeros_like(last_value), (deltas, done), reverse=True)
+    return adv, adv + value
+
+
 def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv:
     """The fPiH env of a method; `env_config` (task settings) must use the method's controller."""
     env_config = env_config or FPiHConfig(control=config.control)
@@ -271,19 +294,8 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
         values = critic.apply(params["critic"], traj.critic_obs)  # (T, B)
         final_values = critic.apply(params["critic"], traj.final_critic_obs)
         last_value = critic.apply(params["critic"], last_critic)
-        next_values = jnp.concatenate([values[1:], last_value[None]], axis=0)
-        # A finished episode bootstraps from its own last observation on a time-out, from 0 on a break.
-        bootstrap = jnp.where(traj.done > 0, final_values, next_values)
-        terminal = traj.done * (1.0 - traj.truncation)
-        deltas = traj.reward + config.gamma * bootstrap * (1.0 - terminal) - values
-
-        def backward(gae, x):
-            delta, done = x
-            gae = delta + config.gamma * config.gae_lambda * (1.0 - done) * gae
-            return gae, gae
-
-        _, adv = jax.lax.scan(backward, jnp.zeros_like(last_value), (deltas, traj.done), reverse=True)
-        return adv, adv + values
+        return generalized_advantages(traj.reward, values, final_values, last_value, traj.done, traj.truncation,
+                                      config.gamma, config.gae_lambda)
 
     # ------------------------------------------------------------------------------- update
     def loss_fn(params, batch: Transition, adv, returns):

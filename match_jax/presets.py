@@ -20,7 +20,7 @@ PRESETS: dict[str, PPOConfig] = {
     "paper": PPOConfig(num_envs=256, rollout_steps=150, total_steps=3_000_000, iterations_per_chunk=2,
                        minibatches=8, network=NetworkConfig(256, 2, 1024, 3)),
     "cpu": PPOConfig(num_envs=128, rollout_steps=150, total_steps=5_000_000, iterations_per_chunk=4,
-                     minibatches=8, network=NetworkConfig(128, 1, 128, 2)),
+                     minibatches=8, network=NetworkConfig(128, 1, 128, 2, initial_log_std=-2.0)),
     "tiny": PPOConfig(num_envs=4, rollout_steps=8, total_steps=64, iterations_per_chunk=1, epochs=2,
                       minibatches=2, network=NetworkConfig(16, 1, 16, 1)),
 }
