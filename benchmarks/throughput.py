@@ -10,6 +10,12 @@ Measured in one run, so the ratios are meaningful on a noisy machine:
   held at gravity compensation (the arm hovers over the hole as at the start of an episode);
 - MuJoCo C: physics steps/s of `mujoco.rollout` over the same initial states and torques, using
   all cores (one thread per core).
+
+    python benchmarks/throughput.py --training cpu,paper --method match
+
+measures training throughput instead: env steps/s of whole PPO iterations (rollout + GAE + update
+epochs, one jitted chunk) at each preset's sizes, after compilation, and in the same run the env
+alone (jit(vmap(step)) with auto-reset) at the same batch, so the ratio shows what learning costs.
 """
 
 from __future__ import annotations
@@ -97,13 +103,65 @@ def benchmark(batch_sizes, repeats: int, control: str = "hybrid") -> dict:
     return results
 
 
+def benchmark_training(presets, method: str, chunks: int) -> dict:
+    """Training env steps/s (one seed) at each preset, and the bare env at the same batch."""
+    from match_jax.envs import AutoResetEnv
+    from match_jax.presets import get_preset
+    from match_jax.training import Run, RunSpec
+
+    results = {"method": method, "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(), "rows": []}
+    for name in presets:
+        ppo = get_preset(name, method=method, iterations_per_chunk=1)
+        run = Run(RunSpec(ppo=ppo, num_seeds=1), "/tmp/unused-benchmark-run")
+        state = run.initial_state()
+        start = time.perf_counter()
+        state, _ = run.chunk(state)
+        jax.block_until_ready(state)
+        compile_s = time.perf_counter() - start
+        start = time.perf_counter()
+        for _ in range(chunks):
+            state, _ = run.chunk(state)
+        jax.block_until_ready(state)
+        train_rate = chunks * ppo.steps_per_iteration / (time.perf_counter() - start)
+
+        benv = AutoResetEnv(run.env)
+        states = jax.jit(benv.reset)(jax.random.split(jax.random.PRNGKey(0), ppo.num_envs))
+        actions = jnp.tile(run.env.neutral_action(), (ppo.num_envs, 1))
+        env_fn = jax.jit(lambda s: jax.lax.scan(lambda c, _: (benv.step(c, actions), None), s, None, length=10)[0])
+        env_rate = 10 * ppo.num_envs / _timed(env_fn, states, 3)
+        row = {"preset": name, "num_envs": ppo.num_envs, "steps_per_iteration": ppo.steps_per_iteration,
+               "first_chunk_s_incl_compile": compile_s, "train_env_steps_per_s": train_rate,
+               "env_only_steps_per_s": env_rate, "train_vs_env": train_rate / env_rate}
+        results["rows"].append(row)
+        print(f"{name:6s} preset ({ppo.num_envs} envs, {method}): training {train_rate:8.0f} env steps/s | env alone "
+              f"{env_rate:8.0f} steps/s | ratio {row['train_vs_env']:.2f} | first chunk incl. compile {compile_s:.0f} s",
+              flush=True)
+    return results
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--batch-sizes", default="1,16,64,256", help="comma-separated env counts")
     parser.add_argument("--repeats", type=int, default=5, help="timed calls per measurement")
     parser.add_argument("--control", default="hybrid", choices=["pose", "vices", "hybrid"])
     parser.add_argument("--json", type=pathlib.Path, default=None)
+    parser.add_argument("--training", default=None, help="comma-separated presets: measure training throughput")
+    parser.add_argument("--method", default="match", choices=["pose", "vices", "hybrid", "match"])
+    parser.add_argument("--chunks", type=int, default=2, help="timed PPO iterations per preset (--training)")
     args = parser.parse_args()
+    if args.training:
+        from match_jax.presets import PRESETS
+        presets = [p for p in args.training.split(",") if p]
+        unknown = [p for p in presets if p not in PRESETS]
+        if unknown or args.chunks < 1:
+            parser.error(f"--training takes presets from {sorted(PRESETS)} and --chunks >= 1, got {args.training!r}, "
+                         f"{args.chunks}")
+        results = benchmark_training(presets, args.method, args.chunks)
+        if args.json:
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps(results, indent=2))
+            print(f"wrote {args.json}")
+        return
     try:
         sizes = [int(b) for b in args.batch_sizes.split(",")]
     except ValueError:

@@ -2,12 +2,19 @@
 
 import match_jax  # noqa: F401  (fast XLA CPU flag before JAX starts)
 
+import pathlib
+import tempfile
+
 import jax
 import jax.numpy as jnp
 import pytest
 
 from match_jax.controllers import ControlTarget
 from match_jax.envs import FPiHConfig, FPiHEnv
+
+# Identical programs compiled by separate Run objects (train -> resume -> train) come from the cache.
+jax.config.update("jax_compilation_cache_dir", str(pathlib.Path(tempfile.gettempdir()) / "match_jax_test_jit_cache"))
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 # A deterministic placement: hole at its nominal pose, no spawn or observation noise.
 QUIET = dict(hole_xy_range=0.0, hole_yaw_range=0.0, spawn_noise=(0.0, 0.0, 0.0), hand_yaw_range=0.0,
