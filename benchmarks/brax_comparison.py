@@ -92,6 +92,11 @@ Other differences that remain (Brax as it is used here vs ours):
 - optimiser: Brax clips the global gradient norm over actor+critic together and uses Adam eps 1e-8;
   ours clips actor and critic separately and uses eps 1e-5.
 - Brax runs its training epoch under `jax.pmap` over 1 device; ours under `jax.jit`.
+
+jax 0.9.2 workaround: our Actor always builds the selection-logit Dense layer, with 0 outputs for
+the pose method, and jax 0.9.2's orthogonal initializer raises ZeroDivisionError on that zero-size
+kernel (jax 0.10 returns an empty array). The script patches flax's `orthogonal` to return zeros
+for zero-size shapes, only when the bug is present (recorded as `zero_size_orthogonal_patched`).
 """
 
 from __future__ import annotations
@@ -122,6 +127,40 @@ from brax.envs.wrappers import training as brax_wrappers  # noqa: E402
 
 from match_jax.evaluation import episode_metrics, make_rollout  # noqa: E402
 from match_jax.presets import get_preset  # noqa: E402
+
+
+def _patch_zero_size_orthogonal() -> bool:
+    """Make flax's `orthogonal` initializer accept zero-size shapes, where jax's raises.
+
+    Our Actor always builds a selection-logit Dense layer, with 0 outputs for pose/VICES; jax 0.9.2's
+    orthogonal initializer divides by that 0 (ZeroDivisionError in `Actor.init`), jax 0.10 returns an
+    empty array. Applied only when the bug is present; a zero-size kernel has no values, so the
+    result is identical to jax 0.10's.
+    """
+    import flax.linen.initializers as flax_init
+
+    try:
+        jax.nn.initializers.orthogonal()(jax.random.PRNGKey(0), (2, 0))
+        return False
+    except ZeroDivisionError:
+        pass
+    original = flax_init.orthogonal
+
+    def orthogonal(*args, **kwargs):
+        init = original(*args, **kwargs)
+
+        def safe(key, shape, dtype=jnp.float32):
+            if math.prod(shape) == 0:
+                return jnp.zeros(shape, dtype)
+            return init(key, shape, dtype)
+
+        return safe
+
+    flax_init.orthogonal = orthogonal
+    return True
+
+
+ZERO_SIZE_ORTHOGONAL_PATCHED = _patch_zero_size_orthogonal()
 
 
 # --------------------------------------------------------------------------------- env adapters
@@ -410,6 +449,7 @@ def main(argv=None) -> dict:
         "clip_eps": ppo.clip_eps, "reward_scale": ppo.reward_scale,
         "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(), "python": platform.python_version(),
         "versions": _versions(),
+        "zero_size_orthogonal_patched": ZERO_SIZE_ORTHOGONAL_PATCHED,
         "steps_per_s_method": "training only: per evaluation interval, ours = host time of one jitted train_chunk "
                               "(blocked), brax = its training/walltime increments; the first interval (compile) "
                               "is dropped",

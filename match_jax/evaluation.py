@@ -19,13 +19,15 @@ RECORDED = ("success", "engaged", "broken", "in_contact", "mean_force", "max_for
             "position_axes", "contact_axes", "truncation")
 
 
-def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_policy_state: bool = True):
+def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_policy_state: bool = True,
+                 record_obs: bool = False):
     """A jittable function (keys (B, 2), policy_state) -> trajectory dict of (T, B, ...) arrays.
 
     Each env runs exactly one episode of `num_steps` (default env.config.episode_steps) policy steps
     from `env.reset(key)`; steps after the episode ended (break) are marked by `done_before`.
     `policy_state` has a leading batch axis, or (batched_policy_state=False) is shared by all envs,
-    e.g. a learned policy's parameters.
+    e.g. a learned policy's parameters. record_obs=True also records 'policy_obs', the policy
+    observation each action was computed from.
     """
     num_steps = num_steps or env.config.episode_steps
 
@@ -36,8 +38,11 @@ def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_poli
         def body(carry, step_key):
             state, pstate, ended = carry
             action, pstate = policy(state.obs, pstate, step_key)
+            obs_before = state.obs["state"]
             state = env.step(state, action)
             record = {name: state.info[name] for name in RECORDED}
+            if record_obs:
+                record["policy_obs"] = obs_before
             record["done_before"] = ended
             record["done"] = state.done
             return (state, pstate, jnp.maximum(ended, state.done)), record

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from match_jax import evaluation
+from match_jax import analysis, evaluation
 from match_jax.envs import FPiHEnv
 from match_jax.training import RunError, load_policy, load_spec
 
@@ -68,15 +68,28 @@ def evaluate_run(run_dir: str | pathlib.Path, episodes: int = 100, noise_mm: flo
         run, policy = load_policy(run_dir, i, checkpoint)
         policies.append((policy["params"], policy["policy_stats"]))
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *policies)
-    rollout = evaluation.make_rollout(env, make_policy(run.trainer), batched_policy_state=False)
+    hybrid = run.trainer.distribution.num_selections > 0
+    rollout = evaluation.make_rollout(env, make_policy(run.trainer), batched_policy_state=False, record_obs=hybrid)
+
+    def rollout_and_p_force(keys, policy_state):
+        traj = rollout(keys, policy_state)
+        if hybrid:  # probability of force control behind every action, (T, E, 3)
+            params, stats = policy_state
+            traj["p_force"] = jax.nn.sigmoid(run.trainer.policy_head(params, stats, traj.pop("policy_obs")).logits)
+        return traj
+
     keys = jax.random.split(jax.random.PRNGKey(seed), spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
-    traj = jax.jit(jax.vmap(rollout))(keys, stacked)  # (S, T, E, ...)
+    traj = jax.jit(jax.vmap(rollout_and_p_force))(keys, stacked)  # (S, T, E, ...)
     traj = jax.device_get(traj)
     per_seed = []
     for i in range(spec.num_seeds):
-        metrics = evaluation.episode_metrics({k: v[i] for k, v in traj.items()}, env.dt)
+        seed_traj = {k: v[i] for k, v in traj.items()}
+        metrics = evaluation.episode_metrics(seed_traj, env.dt)
         summary = evaluation.summarize(metrics)
         summary["seed"] = spec.seed + i
+        if hybrid:
+            alive = 1.0 - seed_traj["done_before"]
+            summary.update(analysis.contact_selection_rates(seed_traj["in_contact"], seed_traj["p_force"], alive))
         per_seed.append(summary)
     aggregate = {}
     for column in COLUMNS:
@@ -95,6 +108,13 @@ def evaluate_run(run_dir: str | pathlib.Path, episodes: int = 100, noise_mm: flo
         "per_seed": per_seed,
         "aggregate": aggregate,
     }
+    if hybrid:  # the paper's selection figure, over all seeds' episodes
+        flat = {k: np.concatenate(list(traj[k]), axis=1) for k in ("phase", "p_force", "done_before")}
+        profile = analysis.selection_profile(flat["phase"], flat["p_force"], 1.0 - flat["done_before"])
+        result["selection_profile"] = {k: np.asarray(v).tolist() for k, v in profile.items()}
+        for key in ("p_force_contact", "p_force_free"):
+            mean, se = evaluation.mean_and_standard_error([s[key] for s in per_seed])
+            result["aggregate"][key] = {"mean": mean, "se": se}
     if return_trajectories:
         result["trajectories"] = traj
     return result
@@ -112,13 +132,19 @@ def format_result(result: dict) -> str:
         cells = "".join(f"{_fmt(s[c] * k):>17}" for c, k in zip(COLUMNS, scale))
         lines.append(f"  {s['seed']:<8}" + cells)
     agg = result["aggregate"]
-    cells = "".join(f"{_fmt(agg[c]['mean'] * k) + ' +- ' + _fmt(agg[c]['se'] * k):>17}" for c, k in zip(COLUMNS, scale))
+    cells = "".join(f"{_fmt_mean_se(agg[c]['mean'] * k, agg[c]['se'] * k):>17}" for c, k in zip(COLUMNS, scale))
     lines.append("  mean+-SE" + cells)
     return "\n".join(lines)
 
 
 def _fmt(x: float) -> str:
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.1f}" if abs(x) >= 10 else f"{x:.2f}"
+
+
+def _fmt_mean_se(mean: float, se: float) -> str:
+    if math.isnan(mean):
+        return "-"
+    return _fmt(mean) if math.isnan(se) else f"{_fmt(mean)} +- {_fmt(se)}"
 
 
 def check_run_dir(run_dir: str | pathlib.Path) -> None:

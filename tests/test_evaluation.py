@@ -55,3 +55,29 @@ def test_success_after_break_does_not_count():
     traj["success"][1:, 0] = 1  # same step as the break: the break came first within the step
     m = episode_metrics(traj, DT)
     assert m["success"][0] == 0 and m["broken"][0] == 1
+
+
+def test_selection_profile_segments_and_normalises_phases():
+    from match_jax.analysis import contact_selection_rates, selection_profile
+
+    T = 8
+    phase = np.array([[0, 0, 1, 1, 1, 1, 2, 2], [0, 0, 0, 0, 1, 1, 1, 1]]).T  # (T, 2)
+    alive = np.ones((T, 2))
+    alive[6:, 1] = 0  # episode 1 broke after step 5: its last steps belong to no episode
+    p = np.zeros((T, 2, 3))
+    p[:, 0, 2] = np.arange(T) / 10  # z of episode 0: 0.0 .. 0.7
+    p[:, 1, 0] = 1.0  # episode 1 always force on x
+    prof = selection_profile(phase, p, alive, bins=2)
+    np.testing.assert_array_equal(prof["episodes"], [2, 2, 1])
+    # approach: ep0 steps 0,1 (one per bin), ep1 steps 0..3 (two per bin)
+    np.testing.assert_array_equal(prof["count"][0], [3, 3])
+    np.testing.assert_allclose(prof["mean"][0, :, 2], [0.0, 0.1 / 3])
+    np.testing.assert_allclose(prof["mean"][0, :, 0], [2 / 3, 2 / 3])
+    # contact: ep0 steps 2..5 -> bins [2,3], [4,5]; ep1 steps 4,5 only (6,7 not alive)
+    np.testing.assert_array_equal(prof["count"][1], [3, 3])
+    np.testing.assert_allclose(prof["mean"][1, :, 2], [(0.2 + 0.3) / 3, (0.4 + 0.5) / 3])
+    # insertion: only ep0 steps 6, 7
+    np.testing.assert_allclose(prof["mean"][2, :, 2], [0.6, 0.7])
+    rates = contact_selection_rates(phase > 0, p, alive)
+    assert rates["contact_steps"] == 8 and rates["free_steps"] == 6
+    assert rates["p_force_free"] == pytest.approx((0.1 / 3 + 4 * 1 / 3) / 6)

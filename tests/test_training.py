@@ -63,6 +63,16 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path):
         assert record is not None and record["iteration"] in (1, 2)
         _, policy = load_policy(straight, seed, "best")
         assert set(policy) == {"params", "policy_stats", "critic_stats"}
+    # eval.py on the run: every seed, the Table 1 columns, selection rates, a JSON document
+    import eval as eval_cli
+    out = tmp_path / "eval.json"
+    assert eval_cli.main([str(straight), "--episodes", "2", "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["seeds"] == 2 and len(result["per_seed"]) == 2
+    for column in ("success_rate", "break_rate", "force_selected_free", "p_force_free"):
+        assert column in result["aggregate"]
+    assert 0.0 < result["aggregate"]["p_force_free"]["mean"] < 0.2  # barely trained: ~0.07 at initialisation
+    assert sum(result["selection_profile"]["episodes"]) >= 4
     # finishing: a third resume completes the 3-iteration budget
     done = train(None, split, resume=True, progress=False)
     assert done["finished"] and done["iterations"] == 3
