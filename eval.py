@@ -120,18 +120,17 @@ def format_table(summary: dict) -> str:
 
 def evaluate_run_dir(args) -> dict:
     """Evaluate a run at one noise level or over a sweep; returns the JSON document."""
-    from match_jax.run_eval import check_run_dir, evaluate_run, format_result
+    from match_jax.run_eval import check_run_dir, evaluate_run_grid, format_result
 
     check_run_dir(args.run_dir)
     break_force = math.inf if args.unbreakable else args.break_force
-    levels = args.noise_levels if args.noise_sweep is not None else [args.noise_mm]
+    levels = args.noise_levels if args.noise_sweep is not None else (
+        None if args.noise_mm is None else [args.noise_mm])
     noise_type = args.noise_type or ("uniform" if args.noise_sweep is not None else None)
-    results = []
-    for level in levels:
-        result = evaluate_run(args.run_dir, args.episodes, noise_mm=level, noise_type=noise_type,
-                              break_force=break_force, checkpoint=args.checkpoint, seed=1000 + args.seed)
+    results = evaluate_run_grid(args.run_dir, args.episodes, levels, noise_type,
+                                None if break_force is None else [break_force], args.checkpoint, 1000 + args.seed)
+    for result in results:
         print(format_result(result))
-        results.append(result)
     return results[0] if args.noise_sweep is None else {"noise_sweep": results}
 
 

@@ -31,9 +31,11 @@ def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_poli
     """
     num_steps = num_steps or env.config.episode_steps
 
-    def one_env(key, policy_state):
+    def one_env(key, policy_state, hole_obs_offset=None):
         reset_key, policy_key = jax.random.split(key)
         state = env.reset(reset_key)
+        if hole_obs_offset is not None:
+            state = env.set_hole_obs_offset(state, hole_obs_offset)
 
         def body(carry, step_key):
             state, pstate, ended = carry
@@ -51,12 +53,30 @@ def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_poli
         _, traj = jax.lax.scan(body, (state, policy_state, jnp.zeros(())), keys)
         return traj
 
-    def rollout(keys, policy_states):
-        in_axes = (0, 0) if batched_policy_state else (0, None)
-        traj = jax.vmap(one_env, in_axes=in_axes)(keys, policy_states)  # (B, T, ...)
+    def rollout(keys, policy_states, hole_obs_offsets=None):
+        """hole_obs_offsets: optional (B, 3) observation errors (m) replacing the env's own draw."""
+        in_axes = (0, 0 if batched_policy_state else None, None if hole_obs_offsets is None else 0)
+        traj = jax.vmap(one_env, in_axes=in_axes)(keys, policy_states, hole_obs_offsets)  # (B, T, ...)
         return jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), traj)
 
     return rollout
+
+
+def apply_break_threshold(traj: dict, break_force: float) -> dict:
+    """The trajectory a peg that breaks at `break_force` N would have had, from an unbreakable rollout.
+
+    Breaking only ends the episode, so up to the first step whose max |F| over its physics steps
+    reaches the threshold the two rollouts are identical; later steps are marked `done_before`.
+    """
+    traj = {k: np.asarray(v) for k, v in traj.items()}
+    alive = 1.0 - traj["done_before"]
+    broken = ((traj["max_force"] >= break_force) & (alive > 0)).astype(np.float32)
+    ended = np.maximum(broken, traj["done"] * alive)
+    done_before = np.zeros_like(alive)
+    done_before[1:] = np.maximum.accumulate(ended, axis=0)[:-1]
+    out = dict(traj)
+    out["broken"], out["done_before"] = broken, np.maximum(done_before, traj["done_before"])
+    return out
 
 
 def episode_metrics(traj: dict, policy_dt: float) -> dict[str, np.ndarray]:

@@ -51,19 +51,29 @@ def make_policy(trainer):
     return policy
 
 
-def evaluate_run(run_dir: str | pathlib.Path, episodes: int = 100, noise_mm: float | None = None,
-                 noise_type: str | None = None, break_force: float | None = None, checkpoint: str = "best",
-                 seed: int = 1000, return_trajectories: bool = False) -> dict:
-    """Evaluate every seed of a run on `episodes` episodes each; returns per-seed and aggregate metrics.
+def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_levels_mm=None,
+                      noise_type: str | None = None, break_forces=None, checkpoint: str = "best",
+                      seed: int = 1000, return_trajectories: bool = False) -> list[dict]:
+    """Evaluate every seed of a run at several noise levels and break thresholds in ONE compiled rollout.
 
-    noise_mm / noise_type / break_force override the run's task settings (None: as trained).
+    The rollout runs unbreakable; a break threshold is applied afterwards (identical up to the first
+    break, see `evaluation.apply_break_threshold`). The hole-position observation error of episode e is
+    level x z_e, with z_e the same standard-gaussian (or uniform +-1) draw at every level, so noise
+    levels are compared on the same episodes. Defaults: the run's training noise level and type, and
+    its break threshold. Returns one result dict (see `evaluate_run`) per (noise level, break force).
     """
     if not (isinstance(episodes, int) and episodes >= 1):
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     spec = load_spec(run_dir)
-    env = FPiHEnv(eval_env_config(spec, noise_mm, noise_type, break_force))
-    policies = []
-    run = None
+    levels = [spec.env.hole_obs_noise * 1000.0] if noise_levels_mm is None else [float(x) for x in noise_levels_mm]
+    noise_type = noise_type or spec.env.hole_obs_noise_type
+    if noise_type not in ("gaussian", "uniform"):
+        raise ValueError(f"noise_type must be 'gaussian' or 'uniform', got {noise_type!r}")
+    break_forces = [spec.env.break_force] if break_forces is None else [float(f) for f in break_forces]
+    if any(not f > 0 for f in break_forces) or any(not (x >= 0 and math.isfinite(x)) for x in levels):
+        raise ValueError(f"break forces must be > 0 and noise levels finite >= 0, got {break_forces}, {levels}")
+    env = FPiHEnv(eval_env_config(spec, break_force=math.inf))
+    policies, run = [], None
     for i in range(spec.num_seeds):
         run, policy = load_policy(run_dir, i, checkpoint)
         policies.append((policy["params"], policy["policy_stats"]))
@@ -71,53 +81,82 @@ def evaluate_run(run_dir: str | pathlib.Path, episodes: int = 100, noise_mm: flo
     hybrid = run.trainer.distribution.num_selections > 0
     rollout = evaluation.make_rollout(env, make_policy(run.trainer), batched_policy_state=False, record_obs=hybrid)
 
-    def rollout_and_p_force(keys, policy_state):
-        traj = rollout(keys, policy_state)
+    def one_level(keys, policy_state, offsets):
+        traj = rollout(keys, policy_state, offsets)
         if hybrid:  # probability of force control behind every action, (T, E, 3)
             params, stats = policy_state
             traj["p_force"] = jax.nn.sigmoid(run.trainer.policy_head(params, stats, traj.pop("policy_obs")).logits)
         return traj
 
-    keys = jax.random.split(jax.random.PRNGKey(seed), spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
-    traj = jax.jit(jax.vmap(rollout_and_p_force))(keys, stacked)  # (S, T, E, ...)
-    traj = jax.device_get(traj)
-    per_seed = []
-    for i in range(spec.num_seeds):
-        seed_traj = {k: v[i] for k, v in traj.items()}
-        metrics = evaluation.episode_metrics(seed_traj, env.dt)
-        summary = evaluation.summarize(metrics)
-        summary["seed"] = spec.seed + i
-        if hybrid:
-            alive = 1.0 - seed_traj["done_before"]
-            summary.update(analysis.contact_selection_rates(seed_traj["in_contact"], seed_traj["p_force"], alive))
-        per_seed.append(summary)
-    aggregate = {}
-    for column in COLUMNS:
+    def one_seed(keys, policy_state, offsets):  # offsets (L, E, 3)
+        return jax.vmap(one_level, in_axes=(None, None, 0))(keys, policy_state, offsets)
+
+    k_episodes, k_noise = jax.random.split(jax.random.PRNGKey(seed))
+    keys = jax.random.split(k_episodes, spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
+    shape = (spec.num_seeds, episodes, 3)
+    z = (jax.random.normal(k_noise, shape) if noise_type == "gaussian"
+         else jax.random.uniform(k_noise, shape, minval=-1.0, maxval=1.0))
+    offsets = jnp.asarray(levels)[None, :, None, None] / 1000.0 * z[:, None]  # (S, L, E, 3), m
+    traj = jax.device_get(jax.jit(jax.vmap(one_seed))(keys, stacked, offsets))  # (S, L, T, E, ...)
+
+    results = []
+    for li, level in enumerate(levels):
+        for force in break_forces:
+            per_seed, seed_trajs = [], []
+            for i in range(spec.num_seeds):
+                seed_traj = {k: v[i, li] for k, v in traj.items()}
+                if math.isfinite(force):
+                    seed_traj = evaluation.apply_break_threshold(seed_traj, force)
+                seed_trajs.append(seed_traj)
+                summary = evaluation.summarize(evaluation.episode_metrics(seed_traj, env.dt))
+                summary["seed"] = spec.seed + i
+                if hybrid:
+                    summary.update(analysis.contact_selection_rates(
+                        seed_traj["in_contact"], seed_traj["p_force"], 1.0 - seed_traj["done_before"]))
+                per_seed.append(summary)
+            result = {
+                "run_dir": str(run_dir),
+                "method": spec.ppo.method,
+                "ssl_coef": spec.ppo.ssl_coef,
+                "checkpoint": checkpoint,
+                "episodes_per_seed": episodes,
+                "seeds": spec.num_seeds,
+                "noise_mm": level,
+                "noise_type": noise_type,
+                "break_force_n": force if math.isfinite(force) else None,
+                "per_seed": per_seed,
+                "aggregate": _aggregate(per_seed, hybrid),
+            }
+            if hybrid:  # the paper's selection figure, over all seeds' episodes
+                flat = {k: np.concatenate([t[k] for t in seed_trajs], axis=1)
+                        for k in ("phase", "p_force", "done_before")}
+                profile = analysis.selection_profile(flat["phase"], flat["p_force"], 1.0 - flat["done_before"])
+                result["selection_profile"] = {k: np.asarray(v).tolist() for k, v in profile.items()}
+            if return_trajectories:
+                result["trajectories"] = seed_trajs
+            results.append(result)
+    return results
+
+
+def _aggregate(per_seed: list[dict], hybrid: bool) -> dict:
+    columns = COLUMNS + (("p_force_contact", "p_force_free") if hybrid else ())
+    out = {}
+    for column in columns:
         mean, se = evaluation.mean_and_standard_error([s[column] for s in per_seed])
-        aggregate[column] = {"mean": mean, "se": se}
-    result = {
-        "run_dir": str(run_dir),
-        "method": spec.ppo.method,
-        "ssl_coef": spec.ppo.ssl_coef,
-        "checkpoint": checkpoint,
-        "episodes_per_seed": episodes,
-        "seeds": spec.num_seeds,
-        "noise_mm": env.config.hole_obs_noise * 1000.0,
-        "noise_type": env.config.hole_obs_noise_type,
-        "break_force_n": env.config.break_force if math.isfinite(env.config.break_force) else None,
-        "per_seed": per_seed,
-        "aggregate": aggregate,
-    }
-    if hybrid:  # the paper's selection figure, over all seeds' episodes
-        flat = {k: np.concatenate(list(traj[k]), axis=1) for k in ("phase", "p_force", "done_before")}
-        profile = analysis.selection_profile(flat["phase"], flat["p_force"], 1.0 - flat["done_before"])
-        result["selection_profile"] = {k: np.asarray(v).tolist() for k, v in profile.items()}
-        for key in ("p_force_contact", "p_force_free"):
-            mean, se = evaluation.mean_and_standard_error([s[key] for s in per_seed])
-            result["aggregate"][key] = {"mean": mean, "se": se}
-    if return_trajectories:
-        result["trajectories"] = traj
-    return result
+        out[column] = {"mean": mean, "se": se}
+    return out
+
+
+def evaluate_run(run_dir: str | pathlib.Path, episodes: int = 100, noise_mm: float | None = None,
+                 noise_type: str | None = None, break_force: float | None = None, checkpoint: str = "best",
+                 seed: int = 1000, return_trajectories: bool = False) -> dict:
+    """Evaluate every seed of a run on `episodes` episodes each; per-seed and mean +- SE metrics.
+
+    noise_mm / noise_type / break_force override the run's task settings (None: as trained).
+    """
+    return evaluate_run_grid(run_dir, episodes, None if noise_mm is None else [noise_mm], noise_type,
+                             None if break_force is None else [break_force], checkpoint, seed,
+                             return_trajectories)[0]
 
 
 def format_result(result: dict) -> str:

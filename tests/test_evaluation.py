@@ -81,3 +81,24 @@ def test_selection_profile_segments_and_normalises_phases():
     rates = contact_selection_rates(phase > 0, p, alive)
     assert rates["contact_steps"] == 8 and rates["free_steps"] == 6
     assert rates["p_force_free"] == pytest.approx((0.1 / 3 + 4 * 1 / 3) / 6)
+
+
+def test_break_threshold_from_an_unbreakable_rollout():
+    from match_jax.evaluation import apply_break_threshold
+
+    traj = _traj(2)
+    traj["done"] = np.zeros((T, 2))
+    traj["done"][-1] = 1  # time-out at the end
+    traj["max_force"] = np.zeros((T, 2))
+    traj["max_force"][2, 0] = 12.0  # would break at 10 N on step 2 ...
+    traj["success"][4:, 0] = 1  # ... so the later success must not count
+    traj["max_force"][3, 1] = 9.0  # below the threshold
+    traj["success"][5, 1] = 1
+    unbreakable = episode_metrics(traj, DT)
+    np.testing.assert_array_equal(unbreakable["success"], [1, 1])
+    broken = apply_break_threshold(traj, 10.0)
+    np.testing.assert_array_equal(broken["done_before"][:, 0], [0, 0, 0, 1, 1, 1])
+    m = episode_metrics(broken, DT)
+    np.testing.assert_array_equal(m["success"], [0, 1])
+    np.testing.assert_array_equal(m["broken"], [1, 0])
+    assert episode_metrics(apply_break_threshold(traj, 15.0), DT)["broken"].sum() == 0

@@ -267,6 +267,16 @@ class FPiHEnv(BraxEnv):
         return State(pipeline_state=data, obs=obs, reward=jnp.zeros(()), done=jnp.zeros(()),
                      metrics=metrics, info=info)
 
+    def set_hole_obs_offset(self, state: State, offset: jax.Array) -> State:
+        """The same episode with another hole-position observation error `offset` (m, world, (3,)).
+
+        Evaluation uses it to sweep noise levels in one compiled rollout (common random numbers); the
+        reset observation is recomputed with the reset's own noise key.
+        """
+        info = {**state.info, "hole_obs_offset": jnp.asarray(offset, jnp.float32)}
+        obs = self._observations(state.pipeline_state, info, jax.random.split(state.info["rng"])[1])
+        return state.replace(obs=obs, info=info)
+
     def _noise(self, key, scale, kind: str, shape) -> jax.Array:
         if kind == "gaussian":
             return scale * jax.random.normal(key, shape)
