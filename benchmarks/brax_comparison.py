@@ -8,10 +8,10 @@ jax 0.10 removed, so it cannot run on the repo's default jax 0.10.2):
     /work/brax_venv/bin/python benchmarks/brax_comparison.py --json results/brax_comparison.json
 
 (run from the repo root; the script puts the repo root on sys.path itself, so match_jax need not be
-installed in that venv). A smoke run that exercises both trainers (~10 min on 2 CPU cores, almost
+installed in that venv). A smoke run that exercises both trainers (~10 min on 2 busy CPU cores, almost
 all of it XLA compiles):
 
-    /work/brax_venv/bin/python benchmarks/brax_comparison.py --num-envs 8 --total-steps 2400 \
+    /work/brax_venv/bin/python benchmarks/brax_comparison.py --num-envs 8 --total-steps 3600 \
         --eval-episodes 8 --json /tmp/brax_comparison_tiny.json
 
 What runs, in ONE process, on `FPiHEnv(FPiHConfig(control="pose"))` (150-step episodes):
@@ -42,24 +42,30 @@ also recorded, as `train_success`; Brax has no equivalent rate.
 
 Env steps/s: training only, compile and evaluation excluded, measured identically for both: the
 wall time of each evaluation interval of K iterations (ours: one jitted `train_chunk` call, timed
-on the host with `block_until_ready`; Brax: its own `training/walltime`, which accumulates only the
-time of its pmapped `training_epoch` calls, also blocked on). The first interval contains the XLA
-compile of the training program, so it is dropped: steps/s = steps of intervals 2..n / their time (at least
-2 intervals are needed: `--evals` is raised to 2 and the run to 2 iterations if necessary). The
-first interval's time (compile + one interval of training) is reported as `first_interval_s`. Both trainers run one after
-the other on the same machine; on a shared or busy machine the two rates see different background
-load (run it on an idle machine and compare the per-interval times in the JSON).
+on the host with `block_until_ready`; Brax: the increments of its own `training/walltime`, which
+accumulates only the time of its pmapped `training_epoch` calls, also blocked on). A listener on
+JAX's compile events (`jax.monitoring`, trace + lower + backend compile) records how many seconds
+of compilation fell into each interval, and intervals with more than 1 s of it are dropped:
+steps/s = steps of the clean intervals / their time. The first interval always compiles the
+training program. Brax (0.14.2 on jax 0.9.2) also compiles its pmapped `training_epoch` a second
+time on its second call (same shapes and dtypes in JAX's compile log; a Brax/pmap quirk, ~40 s on
+2 cores), so its second interval is dropped too; therefore at least 3 intervals are run (`--evals`
+and the iteration count are raised to 3 if needed). Every interval's time and compile seconds are
+in the JSON (`intervals`), and `first_interval_s` is the first one (compile + one interval). Both
+trainers run one after the other on the same machine; on a shared or busy machine they see
+different background load (compare the per-interval times in the JSON).
 
 Key clashes and how they are handled. Brax's `EpisodeWrapper` and `AutoResetWrapper` (the wrappers
 of `brax.envs.training.wrap`) use `state.info['steps']` and `state.info['truncation']`, which our env
-also sets: left as is, the env adds 1 to 'steps' and EpisodeWrapper adds 1 again (every counter
-advances by 2, so episodes end after 75 steps), and EpisodeWrapper recomputes 'truncation' as
-`1 - done` at the time limit, which is 0 because our env itself already sets done = 1 on a time-out,
-so Brax would treat every time-out as a termination (no bootstrap). `BraxAdapter` below fixes both:
-it keeps the whole info dict of our env under `info['fpih']` (Brax's wrappers never see our keys and
-we never see theirs), and it reports `done` only for terminations (break or divergence), leaving
-time limits to Brax's EpisodeWrapper (`episode_length=150`), which then sets done and truncation = 1
-at step 150 as Brax expects.
+also sets. Left as is, both advance the same 'steps' counter (the env adds 1, EpisodeWrapper adds 1
+to the env's result), so every episode ends after 75 policy steps instead of 150 (checked: done at
+steps 75 and 150 of a 160-step run). Separating the counters alone is not enough: our env itself
+sets done = 1 at its time limit, and EpisodeWrapper computes truncation = 1 - done there, i.e. 0, so
+Brax would treat every time-out as a termination (value target without bootstrap). `BraxAdapter`
+below fixes both: it keeps our env's whole info dict under `info['fpih']` (Brax's wrappers never see
+our keys and we never see theirs), and it reports `done` only for terminations (break or divergence),
+leaving the time limit to Brax's EpisodeWrapper (`episode_length=150`), which then sets done = 1 and
+truncation = 1 at step 150 as Brax expects (checked: done only at step 150, truncation 1).
 
 Auto-reset. Brax's `AutoResetWrapper` restarts a finished env from the state and observation of
 that env's FIRST reset: the same hole pose, spawn and hole-observation noise forever, i.e. Brax
@@ -78,8 +84,8 @@ Other differences that remain (Brax as it is used here vs ours):
   obs['state'] and its critic obs['privileged_state'] (the same asymmetric split as ours), but our
   critic also gets the episode-time fraction (steps / 150), Brax's does not.
 - policy distribution: both tanh-squashed Gaussians with log-probs from the pre-tanh value; Brax's
-  std is state dependent (softplus(net) + 0.001, about 0.69 at init), ours a state-independent
-  parameter (exp(-0.7) = 0.50 at init).
+  std is a state-dependent network output (softplus(x) + 0.001, ~0.7 for x near 0 at init), ours a
+  state-independent parameter (exp(-0.7) = 0.50 at init).
 - observation normalisation: both running mean/std per key; Brax updates the statistics with the
   new batch BEFORE its SGD epochs and clips nothing (std_eps 0), ours normalises a rollout with the
   statistics from before it and clips normalised values to +-10.
@@ -243,19 +249,39 @@ def make_evaluator(env: FPiHEnv, policy_from_params, keys: jax.Array):
         return rollout(keys, jnp.zeros(keys.shape[0]))
 
     def evaluate(params) -> dict:
+        # Host copies: the trainers' arrays differ in sharding / weak types between calls, which
+        # would recompile `run`; numpy arrays always give the same signature.
+        params = jax.tree_util.tree_map(np.asarray, jax.device_get(params))
         m = episode_metrics(jax.device_get(run(params)), env.config.policy_dt)
         return {"success_rate": float(np.mean(m["success"])), "break_rate": float(np.mean(m["broken"]))}
 
     return evaluate
 
 
-def steady_rate(intervals: list[dict]) -> float | None:
-    """env steps/s over the intervals after the first (the first one holds the compile)."""
-    rest = intervals[1:]
-    seconds = sum(i["seconds"] for i in rest)
-    if not rest or seconds <= 0:
-        return None
-    return sum(i["env_steps"] for i in rest) / seconds
+class CompileClock:
+    """Seconds JAX has spent tracing, lowering and compiling so far (all threads, this process)."""
+
+    seconds = 0.0
+
+    @classmethod
+    def install(cls):
+        def listener(event, duration, **kwargs):
+            if event.startswith("/jax/core/compile/"):
+                cls.seconds += duration
+
+        jax.monitoring.register_event_duration_secs_listener(listener)
+
+
+COMPILE_LIMIT_S = 1.0  # an interval with more compile time than this is not used for steps/s
+
+
+def steady_rate(intervals: list[dict]) -> tuple[float | None, int]:
+    """(env steps/s over the intervals without compilation, how many such intervals)."""
+    clean = [i for i in intervals if i["compile_s"] <= COMPILE_LIMIT_S]
+    seconds = sum(i["seconds"] for i in clean)
+    if not clean or seconds <= 0:
+        return None, 0
+    return sum(i["env_steps"] for i in clean) / seconds, len(clean)
 
 
 # -------------------------------------------------------------------------------------- trainers
@@ -283,14 +309,14 @@ def run_ours(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, l
     chunks = ppo.num_iterations // ppo.iterations_per_chunk
     intervals, train_success = [], []
     for _ in range(chunks):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), CompileClock.seconds
         state, metrics = run.chunk(state)
         jax.block_until_ready((state, metrics))
-        seconds = time.perf_counter() - t0
+        seconds, compile_s = time.perf_counter() - t0, CompileClock.seconds - c0
         metrics = jax.device_get(metrics)
         env_steps = int(np.asarray(state.env_steps)[0])
         intervals.append({"env_steps": ppo.steps_per_iteration * ppo.iterations_per_chunk, "seconds": seconds,
-                          "at_env_steps": env_steps})
+                          "compile_s": compile_s, "at_env_steps": env_steps})
         for it in range(ppo.iterations_per_chunk):
             rate = float(metrics["success_rate"][it, 0])
             train_success.append({"env_steps": int(metrics["env_steps"][it, 0]),
@@ -298,10 +324,12 @@ def run_ours(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, l
         curve.append({"env_steps": env_steps, **evaluate(seed0(state))})
         log(f"ours  step {env_steps:>9,}: eval success {curve[-1]['success_rate']:.3f} "
             f"break {curve[-1]['break_rate']:.3f}  ({seconds:.1f} s for the interval)")
+    rate, clean = steady_rate(intervals)
     return {
         "success_curve": curve,
         "train_success": train_success,
-        "env_steps_per_s": steady_rate(intervals),
+        "env_steps_per_s": rate,
+        "clean_intervals": clean,
         "first_interval_s": intervals[0]["seconds"] if intervals else None,
         "intervals": intervals,
         "env_steps_total": int(np.asarray(state.env_steps)[0]),
@@ -326,8 +354,11 @@ def run_brax(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, l
         value_hidden_layer_sizes=tuple(value_layers), policy_obs_key="state", value_obs_key="privileged_state")
     curve, progress = [], []
     evaluator = {}
+    compile_marks = []  # (compile seconds when an epoch ended, when our evaluation after it ended)
 
     def policy_params_fn(current_step, make_policy, params):
+        # Brax calls this at step 0 and right after every training epoch, before progress_fn.
+        epoch_end = CompileClock.seconds
         if "fn" not in evaluator:
             def policy_from_params(p):
                 inference = make_policy(p, deterministic=True)
@@ -336,6 +367,7 @@ def run_brax(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, l
         curve.append({"env_steps": int(current_step), **evaluator["fn"](params)})
         log(f"brax  step {int(current_step):>9,}: eval success {curve[-1]['success_rate']:.3f} "
             f"break {curve[-1]['break_rate']:.3f}")
+        compile_marks.append((epoch_end, CompileClock.seconds))
 
     def progress_fn(current_step, metrics):
         progress.append({"env_steps": int(current_step), "walltime": float(metrics["training/walltime"]),
@@ -374,12 +406,17 @@ def run_brax(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, l
     )
     intervals, previous = [], 0.0
     for i, p in enumerate(progress):
+        # compile_marks[0] is the step-0 call; epoch i ran between marks i and i + 1.
+        compile_s = compile_marks[i + 1][0] - compile_marks[i][1]
         intervals.append({"env_steps": p["env_steps"] - (progress[i - 1]["env_steps"] if i else 0),
-                          "seconds": p["walltime"] - previous, "at_env_steps": p["env_steps"]})
+                          "seconds": p["walltime"] - previous, "compile_s": compile_s,
+                          "at_env_steps": p["env_steps"]})
         previous = p["walltime"]
+    rate, clean = steady_rate(intervals)
     return {
         "success_curve": curve,
-        "env_steps_per_s": steady_rate(intervals),
+        "env_steps_per_s": rate,
+        "clean_intervals": clean,
         "first_interval_s": intervals[0]["seconds"] if intervals else None,
         "intervals": intervals,
         "env_steps_total": progress[-1]["env_steps"] if progress else 0,
@@ -406,7 +443,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--num-envs", type=int, default=128, help="parallel envs for both trainers (multiple of 8)")
     parser.add_argument("--total-steps", type=int, default=1_000_000,
                         help="env steps per trainer (rounded up to whole evaluation intervals)")
-    parser.add_argument("--evals", type=int, default=10, help="evaluation points after step 0 (at least 2)")
+    parser.add_argument("--evals", type=int, default=10, help="evaluation points after step 0 (at least 3)")
     parser.add_argument("--eval-episodes", type=int, default=128, help="deterministic episodes per evaluation point")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--brax-autoreset", choices=("fresh", "first"), default="fresh",
@@ -426,8 +463,8 @@ def main(argv=None) -> dict:
     if args.total_steps < 1 or args.eval_episodes < 1:
         parser.error("--total-steps and --eval-episodes must be >= 1")
     steps_per_iteration = args.num_envs * base.rollout_steps
-    iterations = max(-(-args.total_steps // steps_per_iteration), 2)
-    evals = min(max(args.evals, 2), iterations)
+    iterations = max(-(-args.total_steps // steps_per_iteration), 3)
+    evals = min(max(args.evals, 3), iterations)
     per_eval = -(-iterations // evals)
     iterations = per_eval * -(-iterations // per_eval)
     ppo = get_preset("cpu", method="pose", num_envs=args.num_envs, total_steps=iterations * steps_per_iteration,
@@ -451,13 +488,14 @@ def main(argv=None) -> dict:
         "versions": _versions(),
         "zero_size_orthogonal_patched": ZERO_SIZE_ORTHOGONAL_PATCHED,
         "steps_per_s_method": "training only: per evaluation interval, ours = host time of one jitted train_chunk "
-                              "(blocked), brax = its training/walltime increments; the first interval (compile) "
-                              "is dropped",
+                              "(blocked), brax = its training/walltime increments; intervals with > "
+                              f"{COMPILE_LIMIT_S} s of JAX trace/lower/compile time are dropped",
     }
     log(f"{args.num_envs} envs x {ppo.rollout_steps} steps per iteration, {iterations} iterations "
         f"({ppo.total_steps:,} env steps) per trainer, evaluated every {per_eval} iterations on "
         f"{args.eval_episodes} episodes")
     results = {"config": config}
+    CompileClock.install()
     for name in trainers:
         log(f"--- {name}")
         if name == "brax":

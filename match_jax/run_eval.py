@@ -16,6 +16,7 @@ import pathlib
 
 import jax
 import jax.numpy as jnp
+import jax.scipy.stats  # noqa: F401
 import numpy as np
 
 from match_jax import analysis, evaluation
@@ -53,22 +54,26 @@ def make_policy(trainer):
 
 def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_levels_mm=None,
                       noise_type: str | None = None, break_forces=None, checkpoint: str = "best",
-                      seed: int = 1000, return_trajectories: bool = False) -> list[dict]:
+                      seed: int = 1000, return_trajectories: bool = False, noise_specs=None) -> list[dict]:
     """Evaluate every seed of a run at several noise levels and break thresholds in ONE compiled rollout.
 
     The rollout runs unbreakable; a break threshold is applied afterwards (identical up to the first
     break, see `evaluation.apply_break_threshold`). The hole-position observation error of episode e is
     level x z_e, with z_e the same standard-gaussian (or uniform +-1) draw at every level, so noise
     levels are compared on the same episodes. Defaults: the run's training noise level and type, and
-    its break threshold. Returns one result dict (see `evaluate_run`) per (noise level, break force).
+    its break threshold. `noise_specs`, a list of (level mm, 'gaussian' | 'uniform'), replaces
+    noise_levels_mm / noise_type to mix noise types in the same compiled rollout. Returns one result
+    dict (see `evaluate_run`) per (noise level, break force).
     """
     if not (isinstance(episodes, int) and episodes >= 1):
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     spec = load_spec(run_dir)
-    levels = [spec.env.hole_obs_noise * 1000.0] if noise_levels_mm is None else [float(x) for x in noise_levels_mm]
-    noise_type = noise_type or spec.env.hole_obs_noise_type
-    if noise_type not in ("gaussian", "uniform"):
-        raise ValueError(f"noise_type must be 'gaussian' or 'uniform', got {noise_type!r}")
+    if noise_specs is None:
+        levels = [spec.env.hole_obs_noise * 1000.0] if noise_levels_mm is None else [float(x) for x in noise_levels_mm]
+        noise_specs = [(level, noise_type or spec.env.hole_obs_noise_type) for level in levels]
+    levels, types = [float(level) for level, _ in noise_specs], [kind for _, kind in noise_specs]
+    if any(kind not in ("gaussian", "uniform") for kind in types):
+        raise ValueError(f"noise types must be 'gaussian' or 'uniform', got {types}")
     break_forces = [spec.env.break_force] if break_forces is None else [float(f) for f in break_forces]
     if any(not f > 0 for f in break_forces) or any(not (x >= 0 and math.isfinite(x)) for x in levels):
         raise ValueError(f"break forces must be > 0 and noise levels finite >= 0, got {break_forces}, {levels}")
@@ -93,14 +98,16 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
 
     k_episodes, k_noise = jax.random.split(jax.random.PRNGKey(seed))
     keys = jax.random.split(k_episodes, spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
-    shape = (spec.num_seeds, episodes, 3)
-    z = (jax.random.normal(k_noise, shape) if noise_type == "gaussian"
-         else jax.random.uniform(k_noise, shape, minval=-1.0, maxval=1.0))
-    offsets = jnp.asarray(levels)[None, :, None, None] / 1000.0 * z[:, None]  # (S, L, E, 3), m
+    shape = (spec.num_seeds, 1, episodes, 3)
+    z_gauss = jax.random.normal(k_noise, shape)
+    z_uniform = 2.0 * jax.scipy.stats.norm.cdf(z_gauss) - 1.0  # the same draw, mapped to U(-1, 1)
+    is_gauss = jnp.asarray([kind == "gaussian" for kind in types])[None, :, None, None]
+    z = jnp.where(is_gauss, z_gauss, z_uniform)
+    offsets = jnp.asarray(levels)[None, :, None, None] / 1000.0 * z  # (S, L, E, 3), m
     traj = jax.device_get(jax.jit(jax.vmap(one_seed))(keys, stacked, offsets))  # (S, L, T, E, ...)
 
     results = []
-    for li, level in enumerate(levels):
+    for li, (level, noise_type) in enumerate(zip(levels, types)):
         for force in break_forces:
             per_seed, seed_trajs = [], []
             for i in range(spec.num_seeds):

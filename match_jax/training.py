@@ -18,6 +18,8 @@ import dataclasses
 import json
 import math
 import pathlib
+import signal
+import threading
 import time
 
 import jax
@@ -238,6 +240,7 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
                    unit_scale=True, desc=f"{ppo.method} x{spec.num_seeds} seeds", dynamic_ncols=True)
     start, steps_this_session, chunks_run = time.time(), 0, 0
     last_rows: list[dict] = []
+    previous_handler = _stop_on_sigterm()
     try:
         while done_chunks < chunks_total and (max_chunks is None or chunks_run < max_chunks):
             state, metrics = run.chunk(state)
@@ -272,6 +275,9 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
             bar.close()
         print(f"interrupted; the latest checkpoint is kept: resume with --resume --out {run_dir}")
         raise
+    finally:
+        if previous_handler is not None:
+            signal.signal(signal.SIGTERM, previous_handler)
     if bar is not None:
         bar.close()
     elapsed = time.time() - start
@@ -286,6 +292,18 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         "last_break_rate": [r["break_rate"] for r in last_rows],
         "best_success_rate": best,
     }
+
+
+def _stop_on_sigterm():
+    """Turn SIGTERM into KeyboardInterrupt (raised once the running chunk returns), so `kill` stops a
+    run as Ctrl-C does. Returns the previous handler (None off the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    return signal.signal(signal.SIGTERM, handler)
 
 
 def _fmt_mean(rows: list[dict], key: str) -> str:

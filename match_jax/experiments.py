@@ -1,0 +1,244 @@
+"""The paper's experiment suite: train every method, evaluate, sweep noise, analyse selection, report.
+
+    python -m match_jax.experiments --preset cpu --seeds 3 --out results/suite
+    python -m match_jax.experiments --smoke --out /tmp/suite_smoke        # every stage, tiny sizes
+    python -m match_jax.experiments --only pose,match --out results/suite # a subset
+
+Runs (each with --seeds seeds in one program): Pose, VICES, Hybrid-Basic, MATCH, MATCH (no SSL),
+Hybrid-Basic (no SSL), and Pose trained at 2.5 mm hole noise. Then, per run, one compiled rollout
+evaluates every seed at the training noise (Table 1, --episodes per seed) and over the uniform noise
+sweep (0, 1, 2.5, 5, 7.5 mm; --sweep-episodes per seed), each with the 10 N break and unbreakable.
+Resumable: finished runs and evaluations are skipped, interrupted runs resume from their checkpoint.
+Writes OUT/runs/<name>/ (training), OUT/eval/<name>.json, and OUT/REPORT.md with
+learning_curves.png, noise_robustness.png and selection_profile.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import pathlib
+import sys
+import time
+
+import match_jax  # noqa: F401  (fast XLA CPU flag)
+
+import numpy as np
+
+from match_jax import checkpoints, plots
+from match_jax.envs import FPiHConfig
+from match_jax.presets import get_preset
+from match_jax.run_eval import evaluate_run_grid
+from match_jax.training import RunSpec, load_spec, read_metrics, train
+
+# name -> (label, method, ssl on, training hole noise in mm)
+SUITE = {
+    "pose": ("Pose", "pose", True, 1.0),
+    "vices": ("VICES", "vices", True, 1.0),
+    "hybrid": ("Hybrid-Basic", "hybrid", True, 1.0),
+    "match": ("MATCH", "match", True, 1.0),
+    "match_nossl": ("MATCH (no SSL)", "match", False, 1.0),
+    "hybrid_nossl": ("Hybrid-Basic (no SSL)", "hybrid", False, 1.0),
+    "pose_noise2.5": ("Pose (trained at 2.5 mm)", "pose", True, 2.5),
+}
+# Table 1 of the paper: success %, break % (mean over 5 seeds x 100 episodes).
+PAPER_TABLE1 = {"pose": (95.4, 1.6), "vices": (95.2, 1.4), "hybrid": (98.2, 0.4), "match": (97.0, 0.0),
+                "match_nossl": (82.0, 8.2), "hybrid_nossl": (87.0, 2.6)}
+SWEEP_MM = (0.0, 1.0, 2.5, 5.0, 7.5)
+HYBRID = ("hybrid", "match", "match_nossl", "hybrid_nossl")
+
+
+@dataclasses.dataclass(frozen=True)
+class SuiteConfig:
+    out: pathlib.Path
+    preset: str = "cpu"
+    seeds: int = 3
+    total_steps: int | None = None
+    episodes: int = 100
+    sweep_episodes: int = 500
+    only: tuple[str, ...] = tuple(SUITE)
+    smoke: bool = False
+
+
+def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
+    _, method, ssl, noise_mm = SUITE[name]
+    overrides = {"method": method}
+    if not ssl:
+        overrides["ssl_coef"] = 0.0
+    if cfg.total_steps is not None:
+        overrides["total_steps"] = cfg.total_steps
+    ppo = get_preset(cfg.preset, **overrides)
+    env = dataclasses.replace(FPiHConfig(control=ppo.control), hole_obs_noise=noise_mm / 1000.0)
+    return RunSpec(ppo=ppo, env=env, num_seeds=cfg.seeds, preset=cfg.preset)
+
+
+def train_all(cfg: SuiteConfig, log=print) -> None:
+    for name in cfg.only:
+        run_dir = cfg.out / "runs" / name
+        spec = run_spec(name, cfg)
+        if checkpoints.latest_step(checkpoints.latest_dir(run_dir)) is None:
+            log(f"[train] {name}: starting ({spec.ppo.total_steps:,} steps x {spec.num_seeds} seeds)")
+            summary = train(spec, run_dir, progress=not cfg.smoke)
+        else:
+            if load_spec(run_dir) != spec:
+                raise ValueError(f"{run_dir} holds a run with another configuration; use another --out")
+            summary = train(None, run_dir, resume=True, progress=not cfg.smoke)
+        log(f"[train] {name}: {summary['iterations']} iterations, best success {summary['best_success_rate']}")
+
+
+def evaluate_all(cfg: SuiteConfig, log=print) -> dict[str, list[dict]]:
+    results = {}
+    for name in cfg.only:
+        path = cfg.out / "eval" / f"{name}.json"
+        if path.exists():
+            results[name] = json.loads(path.read_text())
+            continue
+        spec = run_spec(name, cfg)
+        start = time.time()
+        # Table 1 at the training noise (gaussian) and the uniform sweep share one compiled rollout; the
+        # sweep uses sweep_episodes, Table 1 the first `episodes` of them.
+        episodes = max(cfg.episodes, cfg.sweep_episodes)
+        specs = [(spec.env.hole_obs_noise * 1000.0, "gaussian")] + [(x, "uniform") for x in SWEEP_MM]
+        grid = evaluate_run_grid(cfg.out / "runs" / name, episodes, noise_specs=specs,
+                                 break_forces=[spec.env.break_force, math.inf])
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(grid, indent=1, allow_nan=True))
+        results[name] = grid
+        log(f"[eval] {name}: {len(grid)} settings in {time.time() - start:.0f} s")
+    return results
+
+
+def _table1_row(grid: list[dict]) -> dict:
+    return next(r for r in grid if r["noise_type"] == "gaussian" and r["break_force_n"] is not None)
+
+
+def _fmt(agg: dict, key: str, scale: float = 1.0, digits: int = 1) -> str:
+    mean, se = agg[key]["mean"], agg[key]["se"]
+    if mean is None or math.isnan(mean):
+        return "-"
+    return f"{scale * mean:.{digits}f}" + ("" if se is None or math.isnan(se) else f" +- {scale * se:.{digits}f}")
+
+
+def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
+    curves = {}
+    for name in cfg.only:
+        rows = read_metrics(cfg.out / "runs" / name)
+        if not rows:
+            continue
+        seeds = sorted({r["seed_index"] for r in rows})
+        iterations = sorted({r["iteration"] for r in rows})
+        rate = np.full((len(seeds), len(iterations)), np.nan)
+        steps = np.zeros(len(iterations))
+        for r in rows:
+            j = iterations.index(r["iteration"])
+            rate[r["seed_index"], j] = np.nan if r["success_rate"] is None else r["success_rate"]
+            steps[j] = r["env_steps"]
+        curves[SUITE[name][0]] = {"env_steps": steps, "success_rate": rate}
+    return curves
+
+
+def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str) -> pathlib.Path:
+    out = cfg.out
+    curves = learning_curves(cfg)
+    plots.learning_curves(curves, out / "learning_curves.png", smooth=1 if cfg.smoke else 5)
+    plots.noise_robustness({SUITE[n][0]: [r for r in g if r["noise_type"] == "uniform"] for n, g in results.items()},
+                           out / "noise_robustness.png")
+    profiles = {SUITE[n][0]: _table1_row(g)["selection_profile"] for n, g in results.items() if n in HYBRID}
+    plots.selection_profile(profiles, out / "selection_profile.png")
+
+    preset = get_preset(cfg.preset)
+    lines = [
+        "# match_jax experiment report", "",
+        f"Command: `{command}`", "",
+        f"Preset `{cfg.preset}`: {preset.num_envs} envs per seed, {cfg.total_steps or preset.total_steps:,} env steps "
+        f"per seed, {cfg.seeds} seeds per method. Evaluation: best checkpoint per seed (highest training success "
+        f"rate), deterministic policy, {cfg.episodes} episodes per seed at the training noise (gaussian), "
+        f"{max(cfg.episodes, cfg.sweep_episodes)} per seed for the uniform noise sweep."
+        + (" **Smoke run: tiny sizes, the numbers mean nothing.**" if cfg.smoke else ""), "",
+        "## Table 1 analogue (mean +- SE over seeds; 10 N break)", "",
+        "| method | success % | break % | time to success (s) | mean contact force (N) | paper success % | paper break % |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, grid in results.items():
+        agg = _table1_row(grid)["aggregate"]
+        paper = PAPER_TABLE1.get(name)
+        lines.append(f"| {SUITE[name][0]} | {_fmt(agg, 'success_rate', 100)} | {_fmt(agg, 'break_rate', 100)} | "
+                     f"{_fmt(agg, 'mean_time_to_success_s', 1, 2)} | {_fmt(agg, 'mean_force_n', 1, 2)} | "
+                     f"{paper[0] if paper else '-'} | {paper[1] if paper else '-'} |")
+    lines += ["", "## Noise robustness (uniform hole-position noise; success % / break %)", "",
+              "| method | " + " | ".join(f"+-{x:g} mm" for x in SWEEP_MM) + " | unbreakable: " +
+              " | ".join(f"+-{x:g}" for x in SWEEP_MM) + " |",
+              "|---|" + "---|" * (2 * len(SWEEP_MM))]
+    for name, grid in results.items():
+        cells, cells_unb = [], []
+        for x in SWEEP_MM:
+            for r in grid:
+                if r["noise_type"] == "uniform" and r["noise_mm"] == x:
+                    a = r["aggregate"]
+                    if r["break_force_n"] is None:
+                        cells_unb.append(_fmt(a, "success_rate", 100))
+                    else:
+                        cells.append(f"{_fmt(a, 'success_rate', 100)} / {_fmt(a, 'break_rate', 100)}")
+        lines.append(f"| {SUITE[name][0]} | " + " | ".join(cells) + " | " + " | ".join(cells_unb) + " |")
+    lines += ["", "## Force selection (hybrid methods, training noise): P(force) on in-contact vs free-space steps", "",
+              "| method | in contact % | free space % | paper (MATCH) |", "|---|---|---|---|"]
+    for name, grid in results.items():
+        if name in HYBRID:
+            agg = _table1_row(grid)["aggregate"]
+            lines.append(f"| {SUITE[name][0]} | {_fmt(agg, 'p_force_contact', 100)} | {_fmt(agg, 'p_force_free', 100)} "
+                         f"| {'84 +- 10.8 / 2.9 +- 2.1' if name == 'match' else ''} |")
+    lines += ["", "## Learning (training success rate of the last 5 iterations, mean over seeds)", "",
+              "| method | env steps per seed | final success % | best iteration success % |", "|---|---|---|---|"]
+    for label, c in curves.items():
+        rate = c["success_rate"]
+        tail = np.nanmean(rate[:, -5:]) if rate.size else float("nan")
+        lines.append(f"| {label} | {int(c['env_steps'][-1]):,} | {100 * tail:.1f} | {100 * np.nanmax(rate):.1f} |")
+    lines += ["", "## Figures", "", "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
+              "- `noise_robustness.png`: success and break rate vs uniform noise, breakable and unbreakable",
+              "- `selection_profile.png`: P(force) per axis over approach / contact / insertion (time-normalised)", ""]
+    path = out / "REPORT.md"
+    path.write_text("\n".join(lines))
+    return path
+
+
+def parse_args(argv=None) -> SuiteConfig:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", type=pathlib.Path, required=True)
+    parser.add_argument("--preset", choices=["cpu", "paper", "tiny"], default="cpu")
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--total-steps", type=int, default=None)
+    parser.add_argument("--episodes", type=int, default=100, help="Table 1 episodes per seed")
+    parser.add_argument("--sweep-episodes", type=int, default=500, help="noise-sweep episodes per seed")
+    parser.add_argument("--only", default=",".join(SUITE), help=f"comma-separated subset of {list(SUITE)}")
+    parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
+    args = parser.parse_args(argv)
+    only = tuple(x for x in args.only.split(",") if x)
+    unknown = [x for x in only if x not in SUITE]
+    if unknown or not only:
+        parser.error(f"--only takes names from {list(SUITE)}, got {args.only!r}")
+    for name in ("seeds", "episodes", "sweep_episodes", "total_steps"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
+    if args.smoke:
+        return SuiteConfig(out=args.out, preset="tiny", seeds=2, total_steps=None, episodes=2, sweep_episodes=2,
+                           only=only, smoke=True)
+    return SuiteConfig(out=args.out, preset=args.preset, seeds=args.seeds, total_steps=args.total_steps,
+                       episodes=args.episodes, sweep_episodes=args.sweep_episodes, only=only)
+
+
+def main(argv=None) -> int:
+    cfg = parse_args(argv)
+    cfg.out.mkdir(parents=True, exist_ok=True)
+    command = "python -m match_jax.experiments " + " ".join(sys.argv[1:] if argv is None else argv)
+    train_all(cfg)
+    results = evaluate_all(cfg)
+    path = write_report(cfg, results, command)
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,112 @@
+"""Matplotlib figures of the paper's experiments (PNG files; the Agg backend, no display needed).
+
+- learning curves: training success rate vs env steps per method, mean and 95 % CI over seeds;
+- noise robustness: success and break rate vs hole-observation noise, breakable and unbreakable;
+- selection profile: probability of force control per axis over the phase-normalised episode.
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from match_jax.analysis import PHASES  # noqa: E402
+
+T_975 = {1: 12.71, 2: 4.30, 3: 3.18, 4: 2.78, 5: 2.57, 6: 2.45, 7: 2.36, 8: 2.31, 9: 2.26}  # t quantiles, df
+
+
+def mean_and_ci95(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and half-width of the 95 % t-interval over axis 0 (NaN-aware; 0 width for one seed)."""
+    values = np.asarray(values, np.float64)
+    n = np.sum(~np.isnan(values), axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.nanmean(values, axis=0)
+        sd = np.nanstd(values, axis=0, ddof=1) if values.shape[0] > 1 else np.zeros_like(mean)
+        t = np.array([T_975.get(int(k) - 1, 1.96) if k > 1 else 0.0 for k in np.ravel(n)]).reshape(np.shape(n))
+        half = np.where(n > 1, t * sd / np.sqrt(np.maximum(n, 1)), 0.0)
+    return mean, half
+
+
+def learning_curves(curves: dict[str, dict], path: str | pathlib.Path, smooth: int = 5) -> None:
+    """curves: name -> {'env_steps': (I,), 'success_rate': (seeds, I)}; moving average over `smooth`."""
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for name, c in curves.items():
+        rates = np.asarray(c["success_rate"], np.float64)
+        if smooth > 1 and rates.shape[1] >= smooth:
+            kernel = np.ones(smooth) / smooth
+            rates = np.stack([np.convolve(np.nan_to_num(r), kernel, mode="valid") for r in rates])
+            steps = np.asarray(c["env_steps"])[smooth - 1:]
+        else:
+            steps = np.asarray(c["env_steps"])
+        mean, half = mean_and_ci95(rates)
+        ax.plot(steps, 100 * mean, label=f"{name} ({rates.shape[0]} seeds)")
+        ax.fill_between(steps, 100 * (mean - half), 100 * (mean + half), alpha=0.2)
+    ax.set_xlabel("env steps per seed")
+    ax.set_ylabel("training success rate (%)")
+    ax.set_ylim(-2, 102)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Learning curves (mean, 95% CI over seeds)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def noise_robustness(sweeps: dict[str, list[dict]], path: str | pathlib.Path) -> None:
+    """sweeps: name -> list of eval results (noise_mm, break_force_n, aggregate) from evaluate_run_grid."""
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    panels = [("success_rate", False, "success, breakable (%)"), ("break_rate", False, "break rate (%)"),
+              ("success_rate", True, "success, unbreakable (%)")]
+    for ax, (column, unbreakable, title) in zip(axes, panels):
+        for name, results in sweeps.items():
+            rows = sorted((r for r in results if (r["break_force_n"] is None) == unbreakable), key=lambda r: r["noise_mm"])
+            if not rows:
+                continue
+            x = [r["noise_mm"] for r in rows]
+            y = np.array([100 * r["aggregate"][column]["mean"] for r in rows])
+            err = np.array([100 * _nan0(r["aggregate"][column]["se"]) for r in rows])
+            ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=name)
+        ax.set_xlabel("hole-position noise, uniform +- (mm)")
+        ax.set_title(title)
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def selection_profile(profiles: dict[str, dict], path: str | pathlib.Path) -> None:
+    """profiles: name -> selection_profile dict (mean (3, bins, 3), bin_centres, episodes)."""
+    fig, axes = plt.subplots(1, max(len(profiles), 1), figsize=(6 * max(len(profiles), 1), 3.8), squeeze=False)
+    for ax, (name, prof) in zip(axes[0], profiles.items()):
+        mean = np.asarray(prof["mean"], np.float64)
+        centres = np.asarray(prof["bin_centres"])
+        for axis, label in enumerate("xyz"):
+            xs, ys = [], []
+            for k in range(len(PHASES)):
+                xs.extend(k + centres)
+                ys.extend(100 * mean[k, :, axis])
+            ax.plot(xs, ys, label=f"{label}")
+        for k in range(1, len(PHASES)):
+            ax.axvline(k, color="gray", lw=0.8)
+        ax.set_xticks([0.5, 1.5, 2.5])
+        ax.set_xticklabels([f"{p}\n(n={n})" for p, n in zip(PHASES, prof["episodes"])])
+        ax.set_ylabel("P(force control) (%)")
+        ax.set_ylim(-2, 102)
+        ax.set_title(f"{name}: force selection by phase")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _nan0(x) -> float:
+    return 0.0 if x is None or (isinstance(x, float) and math.isnan(x)) else float(x)

@@ -1,0 +1,41 @@
+"""The experiment suite end to end at smoke sizes, and the quickstart notebook's code."""
+
+import match_jax  # noqa: F401
+
+import json
+import pathlib
+
+from match_jax import experiments
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+
+
+def test_smoke_suite_writes_report_and_plots(tmp_path):
+    out = tmp_path / "suite"
+    assert experiments.main(["--smoke", "--out", str(out)]) == 0
+    report = (out / "REPORT.md").read_text()
+    for label in ("Pose", "VICES", "Hybrid-Basic", "MATCH", "MATCH (no SSL)", "Hybrid-Basic (no SSL)",
+                  "Pose (trained at 2.5 mm)"):
+        assert f"| {label} |" in report
+    assert "Smoke run" in report and "95.4" in report  # the paper's numbers beside ours
+    for name in ("learning_curves.png", "noise_robustness.png", "selection_profile.png"):
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
+    grid = json.loads((out / "eval" / "match.json").read_text())
+    assert len(grid) == 2 * (1 + len(experiments.SWEEP_MM))  # (training noise + sweep) x (break, unbreakable)
+    assert {r["break_force_n"] for r in grid} == {10.0, None}
+    # resumable: a second call skips finished training and evaluation
+    mtime = (out / "eval" / "match.json").stat().st_mtime
+    assert experiments.main(["--smoke", "--out", str(out), "--only", "match"]) == 0
+    assert (out / "eval" / "match.json").stat().st_mtime == mtime
+
+
+def test_quickstart_notebook_runs(tmp_path, monkeypatch):
+    notebook = json.loads((REPO / "notebooks" / "quickstart.ipynb").read_text())
+    code = "\n\n".join("".join(cell["source"]) for cell in notebook["cells"] if cell["cell_type"] == "code")
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
+    exec(compile(code, "quickstart.ipynb", "exec"), namespace)
+    assert namespace["summary"]["finished"]
+    assert namespace["figure_path"].exists()
+    assert namespace["result"]["seeds"] == 2
