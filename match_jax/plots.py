@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import pathlib
+import warnings
 
 import matplotlib
 
@@ -25,7 +26,8 @@ def mean_and_ci95(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean and half-width of the 95 % t-interval over axis 0 (NaN-aware; 0 width for one seed)."""
     values = np.asarray(values, np.float64)
     n = np.sum(~np.isnan(values), axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns (no episode ended) stay NaN
         mean = np.nanmean(values, axis=0)
         sd = np.nanstd(values, axis=0, ddof=1) if values.shape[0] > 1 else np.zeros_like(mean)
         t = np.array([T_975.get(int(k) - 1, 1.96) if k > 1 else 0.0 for k in np.ravel(n)]).reshape(np.shape(n))
