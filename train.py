@@ -40,6 +40,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10)")
+    parser.add_argument("--controller", choices=["paper", "factory"], default="paper",
+                        help="task-space law: the paper's J^T M_x (default) or IsaacLab Factory's J^T "
+                             "(k_p in N/m: 10x more compliant at the code's gains)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run directory")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks (resumable)")
@@ -83,6 +86,8 @@ def build_spec(args: argparse.Namespace):
         env = dataclasses.replace(env, hole_obs_noise=args.hole_noise_mm / 1000.0)
     if args.break_force is not None:
         env = dataclasses.replace(env, break_force=args.break_force)
+    if args.controller == "factory":
+        env = dataclasses.replace(env, controller=dataclasses.replace(env.controller, use_task_inertia=False))
     return RunSpec(ppo=ppo, env=env, num_seeds=args.seeds, seed=args.seed, preset=args.preset)
 
 
