@@ -71,8 +71,11 @@ class Actor(nn.Module):
         mean = nn.Dense(self.num_continuous, kernel_init=nn.initializers.orthogonal(0.01))(x)
         log_std = self.param("log_std", nn.initializers.constant(cfg.initial_log_std), (self.num_continuous,))
         log_std = jnp.clip(log_std, cfg.min_log_std, cfg.max_log_std)
-        logits = nn.Dense(self.num_selections, kernel_init=nn.initializers.orthogonal(0.01),
-                          bias_init=nn.initializers.constant(INITIAL_SELECTION_BIAS))(x)
+        if self.num_selections:
+            logits = nn.Dense(self.num_selections, kernel_init=nn.initializers.orthogonal(0.01),
+                              bias_init=nn.initializers.constant(INITIAL_SELECTION_BIAS))(x)
+        else:  # pose / VICES: no selection head (a zero-width Dense breaks some jax versions' initialisers)
+            logits = jnp.zeros(x.shape[:-1] + (0,), x.dtype)
         return PolicyHead(logits=logits, mean=mean, log_std=jnp.broadcast_to(log_std, mean.shape))
 
 
