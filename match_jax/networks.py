@@ -26,6 +26,9 @@ class NetworkConfig:
     critic_hidden: int = 1024
     critic_blocks: int = 3
     initial_log_std: float = -0.7  # pre-tanh std ~0.5 at the start
+    # Hybrid: the force-z target the untrained policy's mean commands (N, robot on environment). A
+    # gentle -1 N instead of the mid-range -10 N: early random force selections then do not dive.
+    initial_force_z: float | None = -1.0
     min_log_std: float = -5.0
     max_log_std: float = 1.0
 
@@ -63,12 +66,15 @@ class Actor(nn.Module):
     num_continuous: int
     num_selections: int
     config: NetworkConfig
+    mean_bias: tuple[float, ...] = ()  # initial pre-tanh means (default 0)
 
     @nn.compact
     def __call__(self, obs: jax.Array) -> PolicyHead:
         cfg = self.config
         x = SimBaTrunk(cfg.actor_hidden, cfg.actor_blocks)(obs)
-        mean = nn.Dense(self.num_continuous, kernel_init=nn.initializers.orthogonal(0.01))(x)
+        bias = jnp.asarray(self.mean_bias if self.mean_bias else (0.0,) * self.num_continuous, jnp.float32)
+        mean = nn.Dense(self.num_continuous, kernel_init=nn.initializers.orthogonal(0.01),
+                        bias_init=lambda *_: bias)(x)
         log_std = self.param("log_std", nn.initializers.constant(cfg.initial_log_std), (self.num_continuous,))
         log_std = jnp.clip(log_std, cfg.min_log_std, cfg.max_log_std)
         if self.num_selections:

@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from brax.training.acme import running_statistics
 from brax.training.acme import specs
@@ -166,6 +167,20 @@ def generalized_advantages(reward, value, final_value, last_value, done, truncat
     return adv, adv + value
 
 
+def initial_mean_bias(config: PPOConfig, env) -> tuple[float, ...]:
+    """Initial pre-tanh means: 0, except the force-z component of hybrid policies, set so the untrained
+    mean commands `network.initial_force_z` N (see NetworkConfig)."""
+    space = make_distribution(config.method).space
+    bias = [0.0] * len(space.continuous)
+    force_z = config.network.initial_force_z
+    actions = getattr(getattr(env, "config", None), "actions", None)
+    if space.force and force_z is not None and actions is not None:
+        lo, hi = actions.force_z_range
+        a = float(np.clip(-1.0 + 2.0 * (force_z - lo) / (hi - lo), -0.999, 0.999))
+        bias[space.continuous.index(space.force[2])] = float(np.arctanh(a))
+    return tuple(bias)
+
+
 def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv:
     """The fPiH env of a method; `env_config` (task settings) must use the method's controller."""
     env_config = env_config or FPiHConfig(control=config.control)
@@ -178,7 +193,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
     """Build the pure, jit-able init and train_chunk functions of one configuration."""
     dist = make_distribution(config.method, config.selection_in_ratio)
     space = dist.space
-    actor = Actor(dist.num_continuous, dist.num_selections, config.network)
+    actor = Actor(dist.num_continuous, dist.num_selections, config.network, initial_mean_bias(config, env))
     critic = Critic(config.network)
     benv = AutoResetEnv(env)
     episode_steps = float(env.config.episode_steps)

@@ -156,3 +156,20 @@ def test_selection_loss_gradient_pushes_p_force_toward_the_label():
 def test_unknown_method_is_named():
     with pytest.raises(ValueError, match="'sac'"):
         D.make_distribution("sac")
+
+
+def test_untrained_hybrid_policy_commands_a_gentle_force():
+    from match_jax.envs import FPiHConfig
+    from match_jax.ppo import PPOConfig, initial_mean_bias
+
+    class _Env:  # only the action scaling is read
+        config = FPiHConfig()
+
+    cfg = PPOConfig(method="match")
+    bias = initial_mean_bias(cfg, _Env())
+    space = D.make_distribution("match").space
+    a = np.tanh(bias[space.continuous.index(space.force[2])])
+    lo, hi = FPiHConfig().actions.force_z_range
+    assert lo + 0.5 * (a + 1) * (hi - lo) == pytest.approx(-1.0, abs=1e-4)
+    assert sum(abs(b) for b in bias) == pytest.approx(abs(np.arctanh(a)))  # everything else starts at 0
+    assert initial_mean_bias(PPOConfig(method="pose"), _Env()) == (0.0,) * 4
