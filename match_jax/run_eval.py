@@ -117,6 +117,8 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
                 seed_trajs.append(seed_traj)
                 summary = evaluation.summarize(evaluation.episode_metrics(seed_traj, env.dt))
                 summary["seed"] = spec.seed + i
+                if not hybrid:  # no selection: the force-selection columns do not apply
+                    summary["force_selected_contact"] = summary["force_selected_free"] = float("nan")
                 if hybrid:
                     summary.update(analysis.contact_selection_rates(
                         seed_traj["in_contact"], seed_traj["p_force"], 1.0 - seed_traj["done_before"]))
