@@ -399,13 +399,17 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
                    distribution=dist)
 
 
-def deterministic_policy(trainer: Trainer, params: dict, policy_stats) -> Any:
-    """`policy(obs, policy_state, key) -> (action, policy_state)` for match_jax.evaluation: tanh of the
-    mean, force control where p_force > 0.5."""
+def deterministic_action(trainer: Trainer, params: dict, policy_stats, policy_obs: jax.Array) -> jax.Array:
+    """The env action of the deterministic policy: tanh of the mean, force control where p_force > 0.5."""
     dist = trainer.distribution
+    return dist.to_action(dist.mode(trainer.policy_head(params, policy_stats, policy_obs)))
+
+
+def deterministic_policy(trainer: Trainer, params: dict, policy_stats) -> Any:
+    """`policy(obs, policy_state, key) -> (action, policy_state)` for match_jax.evaluation, with the
+    parameters closed over (see `deterministic_action`)."""
 
     def policy(obs, policy_state, key):
-        head = trainer.policy_head(params, policy_stats, obs["state"])
-        return dist.to_action(dist.mode(head)), policy_state
+        return deterministic_action(trainer, params, policy_stats, obs["state"]), policy_state
 
     return policy

@@ -21,33 +21,19 @@ import numpy as np
 
 from match_jax import analysis, evaluation
 from match_jax.envs import FPiHEnv
-from match_jax.training import RunError, load_policy, load_spec
+from match_jax.ppo import deterministic_action
+from match_jax.training import RunError, load_policies, load_spec
 
 COLUMNS = ("success_rate", "break_rate", "mean_time_to_success_s", "mean_force_n", "force_selected_contact",
            "force_selected_free")
 
 
-def eval_env_config(spec, noise_mm: float | None = None, noise_type: str | None = None,
-                    break_force: float | None = None):
-    """The run's task settings with the evaluation's noise and break threshold swapped in."""
-    cfg = spec.env
-    if noise_mm is not None:
-        cfg = dataclasses.replace(cfg, hole_obs_noise=noise_mm / 1000.0)
-    if noise_type is not None:
-        cfg = dataclasses.replace(cfg, hole_obs_noise_type=noise_type)
-    if break_force is not None:
-        cfg = dataclasses.replace(cfg, break_force=break_force)
-    return cfg
-
-
 def make_policy(trainer):
-    """policy(obs, (params, policy_stats), key) -> (deterministic action, same state)."""
-    dist = trainer.distribution
+    """policy(obs, (params, policy_stats), key) -> (deterministic action, same state): the parameters
+    travel as the policy state, so one compiled rollout serves every seed."""
 
     def policy(obs, policy_state, key):
-        params, stats = policy_state
-        head = trainer.policy_head(params, stats, obs["state"])
-        return dist.to_action(dist.mode(head)), policy_state
+        return deterministic_action(trainer, *policy_state, obs["state"]), policy_state
 
     return policy
 
@@ -77,12 +63,9 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     break_forces = [spec.env.break_force] if break_forces is None else [float(f) for f in break_forces]
     if any(not f > 0 for f in break_forces) or any(not (x >= 0 and math.isfinite(x)) for x in levels):
         raise ValueError(f"break forces must be > 0 and noise levels finite >= 0, got {break_forces}, {levels}")
-    env = FPiHEnv(eval_env_config(spec, break_force=math.inf))
-    policies, run = [], None
-    for i in range(spec.num_seeds):
-        run, policy = load_policy(run_dir, i, checkpoint)
-        policies.append((policy["params"], policy["policy_stats"]))
-    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *policies)
+    env = FPiHEnv(dataclasses.replace(spec.env, break_force=math.inf))  # breaks are applied afterwards
+    run, policies = load_policies(run_dir, checkpoint)
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[(p["params"], p["policy_stats"]) for p in policies])
     hybrid = run.trainer.distribution.num_selections > 0
     rollout = evaluation.make_rollout(env, make_policy(run.trainer), batched_policy_state=False, record_obs=hybrid)
 

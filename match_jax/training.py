@@ -311,17 +311,26 @@ def _fmt_mean(rows: list[dict], key: str) -> str:
     return f"{100 * sum(values) / len(values):.0f}%" if values else "-"
 
 
+def load_policies(run_dir: str | pathlib.Path, which: str = "best") -> tuple[Run, list[dict]]:
+    """(Run, [{'params', 'policy_stats', 'critic_stats'} per seed]) from the seeds' best checkpoints or
+    the latest one; the Run (env, trainer) is built once for all seeds."""
+    if which not in ("best", "latest"):
+        raise RunError(f"checkpoint must be 'best' or 'latest', got {which!r}")
+    run_dir = pathlib.Path(run_dir)
+    run = Run(load_spec(run_dir), run_dir)
+    seeds = range(run.spec.num_seeds)
+    if which == "best":
+        target = run.policy_target()
+        return run, [checkpoints.restore(checkpoints.best_dir(run_dir, i), target) for i in seeds]
+    policy = _policy_of(run.restore_latest())
+    return run, [_seed_slice(policy, i) for i in seeds]
+
+
 def load_policy(run_dir: str | pathlib.Path, seed_index: int, which: str = "best") -> tuple[Run, dict]:
     """(Run, {'params', 'policy_stats', 'critic_stats'}) of one seed, from its best or the latest checkpoint."""
-    run_dir = pathlib.Path(run_dir)
-    spec = load_spec(run_dir)
-    if not 0 <= seed_index < spec.num_seeds:
-        raise RunError(f"seed index {seed_index} out of range: {run_dir} has {spec.num_seeds} seeds")
-    run = Run(spec, run_dir)
-    if which == "best":
-        return run, checkpoints.restore(checkpoints.best_dir(run_dir, seed_index), run.policy_target())
-    if which == "latest":
-        state = run.restore_latest()
-        return run, _seed_slice(_policy_of(state), seed_index)
-    raise RunError(f"checkpoint must be 'best' or 'latest', got {which!r}")
+    num_seeds = load_spec(run_dir).num_seeds
+    if not 0 <= seed_index < num_seeds:
+        raise RunError(f"seed index {seed_index} out of range: {run_dir} has {num_seeds} seeds")
+    run, policies = load_policies(run_dir, which)
+    return run, policies[seed_index]
 
