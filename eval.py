@@ -4,6 +4,7 @@
     python eval.py runs/match_cpu --noise-sweep 0,1,2.5,5,7.5 --episodes 500     # uniform +-X mm
     python eval.py runs/match_cpu --unbreakable --checkpoint latest
     python eval.py --baseline spiral --episodes 100 --noise-mm 1 --json results/spiral.json
+    python eval.py runs/match_cpu --episodes 100 --render results/match_episode.png  # + image strip
 
 A run is evaluated for every seed with the deterministic policy (tanh of the mean, force control
 where p_force > 0.5), all seeds and episodes in one jitted batch, at the training noise unless
@@ -20,7 +21,11 @@ import json
 import math
 import pathlib
 import sys
+import os
 import time
+
+if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+    os.environ.setdefault("MUJOCO_GL", "egl")  # headless offscreen rendering for --render
 
 import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 
@@ -43,6 +48,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--batch", type=int, default=0, help="episodes per jitted batch (default: all)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=pathlib.Path, default=None, help="write the results here")
+    parser.add_argument("--render", type=pathlib.Path, default=None,
+                        help="also save a PNG image strip of one episode (seed 0 of a run) here")
     args = parser.parse_args(argv)
     if (args.run_dir is None) == (args.baseline is None):
         parser.error("give either a RUN_DIR or --baseline spiral|pose")
@@ -134,6 +141,35 @@ def evaluate_run_dir(args) -> dict:
     return results[0] if args.noise_sweep is None else {"noise_sweep": results}
 
 
+def render_episode(args) -> None:
+    """Save an image strip of one episode (the run's first seed, or the baseline) to args.render."""
+    import jax
+
+    from match_jax import baselines, render
+    from match_jax.envs import FPiHConfig, FPiHEnv
+
+    if args.run_dir is not None:
+        from match_jax.ppo import deterministic_policy
+        from match_jax.training import load_policy
+
+        run, policy_params = load_policy(args.run_dir, 0, args.checkpoint)
+        env = run.env
+        policy = deterministic_policy(run.trainer, policy_params["params"], policy_params["policy_stats"])
+        policy_state, title = None, f"{args.run_dir} (seed index 0, {args.checkpoint} checkpoint)"
+    else:
+        noise_mm = 1.0 if args.noise_mm is None else args.noise_mm
+        env = FPiHEnv(FPiHConfig(control=baselines.BASELINES[args.baseline][0], hole_obs_noise=noise_mm / 1000.0))
+        policy, policy_state = baselines.make_baseline(args.baseline, env)
+        title = f"{args.baseline} baseline, hole noise {noise_mm:g} mm"
+    states = render.record_episode(env, policy, policy_state, jax.random.PRNGKey(args.seed))
+    try:
+        path = render.render_strip(env, states, args.render, title=title)
+    except render.RenderUnavailable as err:
+        print(f"no image strip: {err}", file=sys.stderr)
+        return
+    print(f"wrote {path}")
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
     start = time.time()
@@ -155,6 +191,8 @@ def main(argv=None) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(summary, indent=2, allow_nan=True))
         print(f"wrote {args.json}")
+    if args.render:
+        render_episode(args)
     return 0
 
 

@@ -34,16 +34,17 @@ class SpiralConfig:
     descend_speed: float = 0.004  # descent toward the hole top (slow: ~10 kg arm inertia, 10 N peg)
     transit_speed: float = 0.010  # descent while still above the hover height
     press_force_n: float = 0.3  # downward force during the spiral
+    chamfer_force_n: float = 1.0  # downward force while sliding through the chamfer (damped: safe)
     spiral_pitch: float = 0.0015  # radial growth per turn
     spiral_speed: float = 0.004  # tangential speed along the spiral (lateral impacts: ~10 kg x v)
     spiral_max_radius: float = 0.006  # restart the spiral beyond this radius
     sink_depth: float = 0.0003  # tip this far below the contact height: on the chamfer, hold xy
     drop_depth: float = 0.0006  # tip this far below the contact height: entering, insert
     insert_speed: float = 0.015  # descent in the bore
-    careful_speed: float = 0.002  # descent over the last `slow_zone` above the bottom
+    careful_speed: float = 0.003  # descent over the last `slow_zone` above the bottom
     slow_zone: float = 0.006
     chamfer_depth: float = 0.002  # below the contact height the peg is past the chamfer
-    chamfer_patience: int = 8  # policy steps in the chamfer without sinking further: resume the spiral
+    chamfer_patience: int = 16  # policy steps in the chamfer without sinking further: resume the spiral
     free_drop_depth: float = 0.003  # descending this far below the observed top without contact: in the bore
     seat_depth: float = 0.0005  # once seated, hold the commanded height this far below the tip
     contact_force_n: float = 1.5  # filtered -F_z above this counts as contact
@@ -127,7 +128,7 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
         # x, y under force control (0 N: compliant) through the chamfer, damped position control elsewhere.
         force_z = (phase == SPIRAL) | ((phase == INSERT) & in_chamfer)
         force_xy = (phase == INSERT) & in_chamfer
-        press = config.press_force_n
+        press = jnp.where(phase == SPIRAL, config.press_force_n, config.chamfer_force_n)
         action = jnp.zeros(space.size)
         action = action.at[jnp.asarray(space.position)].set(jnp.concatenate([xy, z[None]]))
         action = action.at[jnp.asarray(space.selection)].set(

@@ -41,7 +41,14 @@ LOG_2PI = math.log(2.0 * math.pi)
 LOG_2 = math.log(2.0)
 # p(position) at initialisation (DESIGN.md): the selection logit bias is log(p_force / (1 - p_force)).
 INITIAL_P_POSITION = 0.93
-INITIAL_SELECTION_BIAS = math.log((1.0 - INITIAL_P_POSITION) / INITIAL_P_POSITION)
+
+
+def selection_bias(p_position: float) -> float:
+    """Selection-logit bias (log-odds of force control) giving p(position) = p_position."""
+    return math.log((1.0 - p_position) / p_position)
+
+
+INITIAL_SELECTION_BIAS = selection_bias(INITIAL_P_POSITION)
 
 
 class PolicyHead(NamedTuple):

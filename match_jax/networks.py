@@ -14,7 +14,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from match_jax.distributions import INITIAL_SELECTION_BIAS, PolicyHead
+from match_jax.distributions import INITIAL_P_POSITION, PolicyHead, selection_bias
 
 
 @dataclasses.dataclass(frozen=True)
@@ -29,6 +29,8 @@ class NetworkConfig:
     # Hybrid: the force-z target the untrained policy's mean commands (N, robot on environment). A
     # gentle -1 N instead of the mid-range -10 N: early random force selections then do not dive.
     initial_force_z: float | None = -1.0
+    # Hybrid: the untrained policy's probability of position control per axis (paper: ~0.93).
+    initial_p_position: float = INITIAL_P_POSITION
     min_log_std: float = -5.0
     max_log_std: float = 1.0
 
@@ -37,6 +39,8 @@ class NetworkConfig:
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= (1 if "hidden" in name else 0)):
                 raise ValueError(f"NetworkConfig.{name} must be a positive integer, got {value!r}")
+        if not 0.0 < self.initial_p_position < 1.0:
+            raise ValueError(f"NetworkConfig.initial_p_position must be in (0, 1), got {self.initial_p_position!r}")
         if not self.min_log_std < self.max_log_std:
             raise ValueError(f"NetworkConfig needs min_log_std < max_log_std, got {self.min_log_std}, {self.max_log_std}")
 
@@ -79,7 +83,7 @@ class Actor(nn.Module):
         log_std = jnp.clip(log_std, cfg.min_log_std, cfg.max_log_std)
         if self.num_selections:
             logits = nn.Dense(self.num_selections, kernel_init=nn.initializers.orthogonal(0.01),
-                              bias_init=nn.initializers.constant(INITIAL_SELECTION_BIAS))(x)
+                              bias_init=nn.initializers.constant(selection_bias(cfg.initial_p_position)))(x)
         else:  # pose / VICES: no selection head (a zero-width Dense breaks some jax versions' initialisers)
             logits = jnp.zeros(x.shape[:-1] + (0,), x.dtype)
         return PolicyHead(logits=logits, mean=mean, log_std=jnp.broadcast_to(log_std, mean.shape))

@@ -119,14 +119,16 @@ def test_pose_step_converges_without_overshoot(env, axis):
 
 
 def test_free_space_force_selection_accelerates(env):
-    """Force control in free space (f_ee = 0, f_d = -5 N) has no damping: z speed keeps growing, unlike
-    position control with the same downward command, which settles (the reason for the selection loss)."""
+    """The paper's law (no damping on force axes) in free space (f_ee = 0, f_d = -5 N): z speed keeps
+    growing, unlike position control with the same downward command, which settles (the reason for
+    the selection loss)."""
     start = _c_dynamics(env, _home(env)).ee_pos
     posture = np.array(env.home_qpos)
     steps = 20  # 0.17 s: the peg tip starts 4 cm above the table and must not reach it
-    pos_force, vel_force = _simulate(env, ControllerConfig(), lambda dyn: _target(
+    paper_law = ControllerConfig(force_damping=(0.0, 0.0, 0.0))
+    pos_force, vel_force = _simulate(env, paper_law, lambda dyn: _target(
         dyn, start, axes=(1.0, 1.0, 0.0), force=(0.0, 0.0, -5.0), posture=posture), steps)
-    _, vel_pos = _simulate(env, ControllerConfig(), lambda dyn: _target(
+    _, vel_pos = _simulate(env, paper_law, lambda dyn: _target(
         dyn, dyn.ee_pos - np.array([0, 0, 0.004]), posture=posture), steps)
     assert pos_force[-1, 2] > start[2] - 0.035, "the test must stay in free space"
     speed_force = -vel_force[:, 2]
@@ -135,8 +137,29 @@ def test_free_space_force_selection_accelerates(env):
     assert speed_force[-1] > 0.15  # m/s after 0.17 s: 30x the ~5 mm/s that is safe at contact
 
 
+def test_force_axis_damping_bounds_free_space_speed(env):
+    """Default law (k_vf = 20 /s): free-space force selection still drives the arm, but toward the
+    terminal speed (M_x^-1)_zz |F| / k_vf instead of accelerating without bound (closed loop:
+    zddot = -k_vf zdot + (M_x^-1 F)_z)."""
+    start_dyn = _c_dynamics(env, _home(env))
+    posture = np.array(env.home_qpos)
+    config = ControllerConfig()
+    assert config.force_damping[2] == 20.0
+    force = -5.0 * (1.0 + config.force_gain)  # task force on the axis in free space (feedforward + P)
+    mx_inv = start_dyn.jacobian @ np.linalg.solve(start_dyn.mass_matrix, start_dyn.jacobian.T)
+    terminal = mx_inv[2, 2] * abs(force) / config.force_damping[2]  # m/s
+    _, vel = _simulate(env, config, lambda dyn: _target(
+        dyn, start_dyn.ee_pos, axes=(1.0, 1.0, 0.0), force=(0.0, 0.0, -5.0), posture=posture), 30)
+    speed = -vel[:, 2]
+    assert speed[3] > 0.2 * terminal, "force selection must still move the arm"
+    assert speed.max() < 1.3 * terminal, (speed.max(), terminal)
+    assert abs(speed[-1] - terminal) < 0.25 * terminal, (speed[-1], terminal)
+
+
 def test_controller_config_rejects_bad_values():
     with pytest.raises(ValueError, match="force_gain"):
         ControllerConfig(force_gain=-1.0)
+    with pytest.raises(ValueError, match="force_damping"):
+        ControllerConfig(force_damping=(1.0, 1.0, -1.0))
     with pytest.raises(ValueError, match="pos_stiffness"):
         ControllerConfig(pos_stiffness=(1.0, 2.0))

@@ -1,0 +1,60 @@
+"""Image strip of one episode: real pixels where an OpenGL backend exists, a clear message where not."""
+
+import os
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from match_jax import render
+
+REPO = pathlib.Path(__file__).resolve().parents[1]
+
+
+def _states(env, steps=3):
+    """A hand-made 'trajectory': the arm at its home posture, the hole at its nominal pose."""
+    return {"qpos": np.tile(env.home_qpos, (steps + 1, 1)), "hole_pos": np.array([0.55, 0.0, 0.0]),
+            "hole_quat": np.array([1.0, 0.0, 0.0, 0.0]), "phase": np.zeros(steps, np.int32),
+            "max_force": np.zeros(steps), "success": np.zeros(steps), "broken": np.zeros(steps),
+            "done": np.array([0.0] * (steps - 1) + [1.0])}
+
+
+def test_episode_length_stops_at_the_end():
+    states = {"done": np.array([0, 0, 1, 1, 1], np.float32)}
+    assert render.episode_length(states) == 3
+    assert render.episode_length({"done": np.zeros(4)}) == 4
+
+
+def test_render_frames_or_clear_message(env):
+    """In this process MuJoCo's GL backend is whatever MUJOCO_GL said at import: either it renders the
+    scene (not a blank image), or it raises RenderUnavailable naming MUJOCO_GL."""
+    try:
+        images = render.render_frames(env, _states(env), [0, 2], width=96, height=96)
+    except render.RenderUnavailable as err:
+        assert "MUJOCO_GL" in str(err)
+        return
+    assert len(images) == 2 and images[0].shape == (96, 96, 3)
+    assert images[0].std() > 5.0, "a rendered scene is not a uniform image"
+    with pytest.raises(ValueError, match="exceeds"):
+        render.render_frames(env, _states(env), [0], width=10_000, height=96)
+
+
+def test_eval_render_writes_a_strip_or_explains(tmp_path):
+    """eval.py --render with EGL: a PNG strip of a real episode, or (no EGL here) a one-line message and
+    exit code 0, never a traceback."""
+    out = tmp_path / "strip.png"
+    proc = subprocess.run([sys.executable, str(REPO / "eval.py"), "--baseline", "pose", "--episodes", "1",
+                           "--render", str(out)], capture_output=True, text=True, cwd=tmp_path,
+                          env={**os.environ, "MUJOCO_GL": "egl"}, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
+    if out.exists():
+        import matplotlib.image
+
+        image = matplotlib.image.imread(out)
+        assert image.shape[1] > 4 * image.shape[0] / 2, "six frames side by side"
+        assert image.std() > 0.02
+    else:
+        assert "no image strip" in proc.stderr and "MUJOCO_GL" in proc.stderr, proc.stderr[-2000:]
