@@ -60,6 +60,7 @@ class SuiteConfig:
     sweep_episodes: int = 500
     only: tuple[str, ...] = tuple(SUITE)
     smoke: bool = False
+    selection_in_ratio: bool = True  # MATCH runs: False = the authors' code (selection by the SSL only)
 
 
 def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
@@ -67,6 +68,8 @@ def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
     overrides = {"method": method}
     if not ssl:
         overrides["ssl_coef"] = 0.0
+    if method == "match" and not cfg.selection_in_ratio:
+        overrides["selection_in_ratio"] = False
     if cfg.total_steps is not None:
         overrides["total_steps"] = cfg.total_steps
     ppo = get_preset(cfg.preset, **overrides)
@@ -155,7 +158,9 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
         f"Preset `{cfg.preset}`: {preset.num_envs} envs per seed, {cfg.total_steps or preset.total_steps:,} env steps "
         f"per seed, {cfg.seeds} seeds per method. Evaluation: best checkpoint per seed (highest training success "
         f"rate), deterministic policy, {cfg.episodes} episodes per seed at the training noise (gaussian), "
-        f"{max(cfg.episodes, cfg.sweep_episodes)} per seed for the uniform noise sweep."
+        f"{max(cfg.episodes, cfg.sweep_episodes)} per seed for the uniform noise sweep. MATCH's selection term is "
+        + ("in the PPO ratio (paper's equation)." if cfg.selection_in_ratio else
+           "left out of the PPO ratio (authors' code; selection trained by the SSL only).")
         + (" **Smoke run: tiny sizes, the numbers mean nothing.**" if cfg.smoke else ""), "",
         "## Table 1 analogue (mean +- SE over seeds; 10 N break)", "",
         "| method | success % | break % | time to success (s) | mean contact force (N) | paper success % | paper break % |",
@@ -213,6 +218,8 @@ def parse_args(argv=None) -> SuiteConfig:
     parser.add_argument("--sweep-episodes", type=int, default=500, help="noise-sweep episodes per seed")
     parser.add_argument("--only", default=",".join(SUITE), help=f"comma-separated subset of {list(SUITE)}")
     parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
+    parser.add_argument("--selection-not-in-ratio", action="store_true",
+                        help="MATCH runs leave the selection term out of the PPO ratio (the authors' code)")
     args = parser.parse_args(argv)
     only = tuple(x for x in args.only.split(",") if x)
     unknown = [x for x in only if x not in SUITE]
@@ -224,9 +231,10 @@ def parse_args(argv=None) -> SuiteConfig:
             parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
     if args.smoke:
         return SuiteConfig(out=args.out, preset="tiny", seeds=2, total_steps=None, episodes=2, sweep_episodes=2,
-                           only=only, smoke=True)
+                           only=only, smoke=True, selection_in_ratio=not args.selection_not_in_ratio)
     return SuiteConfig(out=args.out, preset=args.preset, seeds=args.seeds, total_steps=args.total_steps,
-                       episodes=args.episodes, sweep_episodes=args.sweep_episodes, only=only)
+                       episodes=args.episodes, sweep_episodes=args.sweep_episodes, only=only,
+                       selection_in_ratio=not args.selection_not_in_ratio)
 
 
 def main(argv=None) -> int:

@@ -40,3 +40,12 @@ def test_quickstart_notebook_runs(tmp_path, monkeypatch):
     assert namespace["summary"]["finished"]
     assert namespace["figure_path"].exists()
     assert namespace["result"]["seeds"] == 2
+
+
+def test_suite_selection_not_in_ratio_applies_to_match_only(tmp_path):
+    cfg = experiments.parse_args(["--out", str(tmp_path), "--selection-not-in-ratio"])
+    assert experiments.run_spec("match", cfg).ppo.selection_in_ratio is False
+    assert experiments.run_spec("match_nossl", cfg).ppo.selection_in_ratio is False
+    assert experiments.run_spec("hybrid", cfg).ppo.selection_in_ratio is True
+    default = experiments.parse_args(["--out", str(tmp_path)])
+    assert experiments.run_spec("match", default).ppo.selection_in_ratio is True
