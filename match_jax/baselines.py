@@ -35,7 +35,6 @@ class SpiralConfig:
     transit_speed: float = 0.010  # descent while still above the hover height
     press_force_n: float = 0.3  # downward force during the spiral
     chamfer_force_n: float = 1.0  # downward force while sliding through the chamfer (damped: safe)
-    careful_force_n: float = 0.0  # > 0: the last `slow_zone` under z force control at this force instead
     spiral_pitch: float = 0.0015  # radial growth per turn
     spiral_speed: float = 0.004  # tangential speed along the spiral (lateral impacts: ~10 kg x v)
     spiral_max_radius: float = 0.006  # restart the spiral beyond this radius
@@ -127,11 +126,9 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
 
         # z under force control while searching and through the chamfer, position control otherwise;
         # x, y under force control (0 N: compliant) through the chamfer, damped position control elsewhere.
-        careful_force = (phase == INSERT) & near_bottom & ~in_chamfer & (config.careful_force_n > 0)
-        force_z = (phase == SPIRAL) | ((phase == INSERT) & in_chamfer) | careful_force
+        force_z = (phase == SPIRAL) | ((phase == INSERT) & in_chamfer)
         force_xy = (phase == INSERT) & in_chamfer
-        press = jnp.select([phase == SPIRAL, careful_force], [config.press_force_n, config.careful_force_n],
-                           config.chamfer_force_n)
+        press = jnp.where(phase == SPIRAL, config.press_force_n, config.chamfer_force_n)
         action = jnp.zeros(space.size)
         action = action.at[jnp.asarray(space.position)].set(jnp.concatenate([xy, z[None]]))
         action = action.at[jnp.asarray(space.selection)].set(
