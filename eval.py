@@ -19,13 +19,10 @@ import argparse
 import dataclasses
 import json
 import math
+import os
 import pathlib
 import sys
-import os
 import time
-
-if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-    os.environ.setdefault("MUJOCO_GL", "egl")  # headless offscreen rendering for --render
 
 import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 
@@ -141,6 +138,17 @@ def evaluate_run_dir(args) -> dict:
     return results[0] if args.noise_sweep is None else {"noise_sweep": results}
 
 
+def choose_gl_backend() -> None:
+    """Headless Linux: use EGL for offscreen rendering when libEGL is installed (MuJoCo reads MUJOCO_GL
+    when `mujoco` is first imported, so this runs before that). Otherwise MuJoCo's default stays and
+    rendering reports itself unavailable."""
+    import ctypes.util
+
+    if sys.platform.startswith("linux") and not os.environ.get("DISPLAY") and "MUJOCO_GL" not in os.environ:
+        if ctypes.util.find_library("EGL"):
+            os.environ["MUJOCO_GL"] = "egl"
+
+
 def render_episode(args) -> None:
     """Save an image strip of one episode (the run's first seed, or the baseline) to args.render."""
     import jax
@@ -172,6 +180,8 @@ def render_episode(args) -> None:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    if args.render:
+        choose_gl_backend()
     start = time.time()
     if args.run_dir is not None:
         from match_jax.checkpoints import CheckpointError

@@ -5,7 +5,8 @@
 
 Rendering needs an OpenGL backend. MuJoCo picks it from the MUJOCO_GL environment variable when
 `mujoco` is first imported: on a headless Linux machine set MUJOCO_GL=egl (GPU or Mesa EGL) or
-MUJOCO_GL=osmesa before starting Python (eval.py sets egl itself when no display is present). Without
+MUJOCO_GL=osmesa before starting Python (eval.py --render sets egl itself on a headless machine
+with libEGL). Without
 a working backend `render_strip` raises `RenderUnavailable` with that advice instead of crashing.
 """
 
