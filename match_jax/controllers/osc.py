@@ -72,14 +72,12 @@ class ControllerConfig:
     task_inertia_damping: float = 1e-6
 
     def __post_init__(self):
-        for name in ("pos_stiffness", "rot_stiffness"):
+        for name in ("pos_stiffness", "rot_stiffness", "force_damping"):
             values = getattr(self, name)
             if len(values) != 3 or any(not (v >= 0) for v in values):
                 raise ValueError(f"ControllerConfig.{name} must be 3 non-negative numbers, got {values!r}")
         if not self.force_gain >= 0:
             raise ValueError(f"ControllerConfig.force_gain must be >= 0, got {self.force_gain!r}")
-        if len(self.force_damping) != 3 or any(not (v >= 0) for v in self.force_damping):
-            raise ValueError(f"ControllerConfig.force_damping must be 3 non-negative numbers, got {self.force_damping!r}")
         if not self.null_stiffness >= 0:
             raise ValueError(f"ControllerConfig.null_stiffness must be >= 0, got {self.null_stiffness!r}")
 
