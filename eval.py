@@ -73,6 +73,15 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
+def baseline_env(name: str, noise_m: float, noise_type: str = "gaussian", break_force: float = 10.0):
+    """The fPiH env a baseline runs in: its controller, the given hole noise (m) and break threshold (N)."""
+    from match_jax import baselines
+    from match_jax.envs import FPiHConfig, FPiHEnv
+
+    return FPiHEnv(FPiHConfig(control=baselines.BASELINES[name][0], hole_obs_noise=noise_m,
+                              hole_obs_noise_type=noise_type, break_force=break_force))
+
+
 def evaluate_baseline(name: str, episodes: int, noise_m: float, noise_type: str = "gaussian",
                       break_force: float = 10.0, seed: int = 0, batch: int = 0) -> dict:
     """Run `episodes` episodes of a baseline and return the summary dict (see match_jax.evaluation)."""
@@ -80,11 +89,8 @@ def evaluate_baseline(name: str, episodes: int, noise_m: float, noise_type: str 
     import numpy as np
 
     from match_jax import baselines, evaluation
-    from match_jax.envs import FPiHConfig, FPiHEnv
 
-    control = baselines.BASELINES[name][0]
-    env = FPiHEnv(FPiHConfig(control=control, hole_obs_noise=noise_m, hole_obs_noise_type=noise_type,
-                             break_force=break_force))
+    env = baseline_env(name, noise_m, noise_type, break_force)
     policy, policy_state = baselines.make_baseline(name, env)
     rollout = jax.jit(evaluation.make_rollout(env, policy))
     batch = batch or episodes
@@ -154,7 +160,6 @@ def render_episode(args) -> None:
     import jax
 
     from match_jax import baselines, render
-    from match_jax.envs import FPiHConfig, FPiHEnv
 
     if args.run_dir is not None:
         from match_jax.ppo import deterministic_policy
@@ -166,7 +171,8 @@ def render_episode(args) -> None:
         policy_state, title = None, f"{args.run_dir} (seed index 0, {args.checkpoint} checkpoint)"
     else:
         noise_mm = 1.0 if args.noise_mm is None else args.noise_mm
-        env = FPiHEnv(FPiHConfig(control=baselines.BASELINES[args.baseline][0], hole_obs_noise=noise_mm / 1000.0))
+        env = baseline_env(args.baseline, noise_mm / 1000.0, args.noise_type or "gaussian",
+                           math.inf if args.unbreakable else args.break_force)
         policy, policy_state = baselines.make_baseline(args.baseline, env)
         title = f"{args.baseline} baseline, hole noise {noise_mm:g} mm"
     states = render.record_episode(env, policy, policy_state, jax.random.PRNGKey(args.seed))

@@ -102,7 +102,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
                 summary["seed"] = spec.seed + i
                 if not hybrid:  # no selection: the force-selection columns do not apply
                     summary["force_selected_contact"] = summary["force_selected_free"] = float("nan")
-                if hybrid:
+                else:
                     summary.update(analysis.contact_selection_rates(
                         seed_traj["in_contact"], seed_traj["p_force"], 1.0 - seed_traj["done_before"]))
                 per_seed.append(summary)

@@ -311,26 +311,31 @@ def _fmt_mean(rows: list[dict], key: str) -> str:
     return f"{100 * sum(values) / len(values):.0f}%" if values else "-"
 
 
+def _policy_run(run_dir: str | pathlib.Path, which: str) -> Run:
+    if which not in ("best", "latest"):
+        raise RunError(f"checkpoint must be 'best' or 'latest', got {which!r}")
+    return Run(load_spec(run_dir), run_dir)
+
+
+def _restore_policies(run: Run, which: str, seed_indices) -> list[dict]:
+    if which == "best":
+        target = run.policy_target()
+        return [checkpoints.restore(checkpoints.best_dir(run.dir, i), target) for i in seed_indices]
+    policy = _policy_of(run.restore_latest())
+    return [_seed_slice(policy, i) for i in seed_indices]
+
+
 def load_policies(run_dir: str | pathlib.Path, which: str = "best") -> tuple[Run, list[dict]]:
     """(Run, [{'params', 'policy_stats', 'critic_stats'} per seed]) from the seeds' best checkpoints or
     the latest one; the Run (env, trainer) is built once for all seeds."""
-    if which not in ("best", "latest"):
-        raise RunError(f"checkpoint must be 'best' or 'latest', got {which!r}")
-    run_dir = pathlib.Path(run_dir)
-    run = Run(load_spec(run_dir), run_dir)
-    seeds = range(run.spec.num_seeds)
-    if which == "best":
-        target = run.policy_target()
-        return run, [checkpoints.restore(checkpoints.best_dir(run_dir, i), target) for i in seeds]
-    policy = _policy_of(run.restore_latest())
-    return run, [_seed_slice(policy, i) for i in seeds]
+    run = _policy_run(run_dir, which)
+    return run, _restore_policies(run, which, range(run.spec.num_seeds))
 
 
 def load_policy(run_dir: str | pathlib.Path, seed_index: int, which: str = "best") -> tuple[Run, dict]:
     """(Run, {'params', 'policy_stats', 'critic_stats'}) of one seed, from its best or the latest checkpoint."""
-    num_seeds = load_spec(run_dir).num_seeds
-    if not 0 <= seed_index < num_seeds:
-        raise RunError(f"seed index {seed_index} out of range: {run_dir} has {num_seeds} seeds")
-    run, policies = load_policies(run_dir, which)
-    return run, policies[seed_index]
+    run = _policy_run(run_dir, which)
+    if not 0 <= seed_index < run.spec.num_seeds:
+        raise RunError(f"seed index {seed_index} out of range: {run_dir} has {run.spec.num_seeds} seeds")
+    return run, _restore_policies(run, which, [seed_index])[0]
 
