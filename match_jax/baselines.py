@@ -3,8 +3,9 @@
 - `spiral_policy`: the classic hybrid spiral search (hybrid action space). Position control brings the
   peg above the observed hole and lowers it slowly until contact; then z switches to force control
   (pressing with `press_force_n`) while x, y trace an Archimedean spiral around the observed hole; when
-  the peg drops into the bore it descends under position control (fast, then slow near the bottom)
-  and finally seats under z force control.
+  the peg drops into the bore it descends under position control (fast, then slow near the bottom,
+  which it locates from the height at which it met the hole top) and finally holds still, seated.
+  Far from any surface it moves fast; every speed at which it can touch a surface stays slow.
 - `pose_descent_policy`: the naive reference (pose action space): align over the observed hole and
   descend straight down under position control.
 
@@ -25,32 +26,38 @@ APPROACH, DESCEND, SPIRAL, INSERT, SEAT = 0, 1, 2, 3, 4
 
 @dataclasses.dataclass(frozen=True)
 class SpiralConfig:
-    """Spiral-search parameters (m, m/s, N)."""
+    """Spiral-search parameters (m, m/s, m/s^2, s, N)."""
 
-    hover_height: float = 0.004  # peg tip above the observed hole top before the descent
-    transit_height: float = 0.010  # tip height while still more than `align_radius` off in xy
+    hover_height: float = 0.003  # peg tip above the observed hole top before the descent
+    transit_height: float = 0.005  # tip height while still more than `align_radius` off in xy
     align_radius: float = 0.002
-    approach_max_action: float = 0.5  # |z action| cap while approaching (avoids diving at the block)
+    approach_speed: float = 0.05  # free-space speed cap (far from any surface)
+    approach_time: float = 0.2  # s: free-space motion aims at a velocity of (remaining error / this)
+    aligned_radius: float = 0.001  # xy error (and z error) below which the descent starts
     descend_speed: float = 0.004  # descent toward the hole top (slow: ~10 kg arm inertia, 10 N peg)
     transit_speed: float = 0.010  # descent while still above the hover height
     press_force_n: float = 0.3  # downward force during the spiral
     chamfer_force_n: float = 1.0  # downward force while sliding through the chamfer (damped: safe)
-    spiral_pitch: float = 0.0015  # radial growth per turn
+    spiral_pitch: float = 0.002  # radial growth per turn (the chamfer catches the peg ~1.4 mm off the axis)
     spiral_speed: float = 0.004  # tangential speed along the spiral (lateral impacts: ~10 kg x v)
+    spiral_lead: float = 1.0  # feed-forward of the spiral velocity (fraction of the PD's tracking lag)
     spiral_max_radius: float = 0.006  # restart the spiral beyond this radius
     sink_depth: float = 0.0003  # tip this far below the contact height: on the chamfer, hold xy
     drop_depth: float = 0.0006  # tip this far below the contact height: entering, insert
-    insert_speed: float = 0.015  # descent in the bore
-    careful_speed: float = 0.003  # descent over the last `slow_zone` above the bottom
-    slow_zone: float = 0.006
+    insert_speed: float = 0.020  # top descent speed in the bore
+    insert_decel: float = 0.08  # deceleration planned toward the careful zone
+    insert_accel: float = 0.06  # the commanded speed leads the actual one by at most this times the step
+    careful_speed: float = 0.003  # descent near the bottom
+    careful_zone: float = 0.0025  # careful descent below this height above the bottom seen from the contact height
+    slow_zone: float = 0.004  # same, above the bottom seen from the observed hole top (no contact seen)
     chamfer_depth: float = 0.002  # below the contact height the peg is past the chamfer
     chamfer_patience: int = 16  # policy steps in the chamfer without sinking further: resume the spiral
     free_drop_depth: float = 0.003  # descending this far below the observed top without contact: in the bore
     seat_depth: float = 0.0005  # once seated, hold the commanded height this far below the tip
     contact_force_n: float = 1.5  # filtered -F_z above this counts as contact
-    blocked_depth: float = 0.004  # commanded height this far below the tip counts as contact
+    stall_fraction: float = 0.3  # moving slower than this fraction of the commanded descent counts as blocked
+    stall_steps: int = 2  # ... for this many policy steps in a row
     approach_gain: float = 2.0
-    approach_damping: float = 0.25  # s: position actions aim at (error - damping * velocity)
     force_filter: float = 0.3  # EMA weight of the new force observation
 
 
@@ -61,24 +68,42 @@ def _position_action(delta, pos_scale: float, gain: float):
 
 def initial_state() -> dict:
     """Policy state of the scripted policies: phase, steps in phase, filtered force, spiral angle,
-    tip height at first contact and the commanded tip height (m above the observed hole top)."""
+    tip height at the last contact (m above the observed hole top), the hole top as met by the peg
+    (`referenced` says whether it met it, so that the bottom is known from it), the commanded tip
+    height and the number of consecutive steps the peg moved down slower than commanded."""
     return {
         "phase": jnp.zeros((), jnp.int32),
         "steps_in_phase": jnp.zeros((), jnp.int32),
         "force": jnp.zeros(3),
         "theta": jnp.zeros(()),
         "contact_height": jnp.zeros(()),
+        "top": jnp.zeros(()),
+        "referenced": jnp.zeros(()),
         "z_cmd": jnp.zeros(()),
+        "stalled": jnp.zeros((), jnp.int32),
     }
 
 
 def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
-    """The spiral-search policy for an env with the 'hybrid' action space."""
+    """The spiral-search policy for an env with the 'hybrid' action space.
+
+    Position actions are issued through the env's action smoothing (an EMA on the continuous action
+    components, whose last output is part of the observation): the policy picks the action that makes
+    the smoothed action equal the one it wants, as far as [-1, 1] allows, so that its commands act
+    within one policy step. Motion commands are velocities: the pose PD (k_p, k_d = 2 sqrt(k_p))
+    settles at v when its target leads the end effector by v k_d / k_p.
+    """
     if env.action_space.name != "hybrid":
         raise ValueError(f"the spiral baseline needs the 'hybrid' controller, got {env.action_space.name!r}")
     space, layout, acfg = env.action_space, env.policy_obs_layout, env.config.actions
     tip_below_ee, depth, dt = env.peg_tip_below_ee, env.hole_depth, env.dt
     f_lo, f_hi = acfg.force_z_range
+    kp = jnp.asarray(env.config.controller.pos_stiffness, jnp.float32)
+    # A target held for one policy step dt, leading the end effector by L at the step's start, moves it
+    # at v = L / (k_d / k_p + dt / 2) (the lead shrinks by v dt / 2 on average over the step).
+    lead_time = 2.0 / jnp.sqrt(kp) + 0.5 * dt
+    ema = acfg.ema
+    pos_idx = jnp.asarray(space.position)
 
     def force_z_action(force_n):  # inverse of f_z = lo + (a + 1) / 2 (hi - lo), for a push of force_n
         return -1.0 + 2.0 * (-force_n - f_lo) / (f_hi - f_lo)
@@ -86,68 +111,103 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
     def to_position_action(delta):
         return _position_action(delta, acfg.pos_scale, config.approach_gain)
 
+    def velocity_action(v):  # smoothed position action that makes the PD settle at velocity v (m/s, 3)
+        return v * lead_time / acfg.pos_scale
+
+    def free_velocity(error, speed_cap):  # velocity toward a target `error` away, capped in norm
+        v = error / config.approach_time
+        norm = jnp.linalg.norm(v)
+        return v * jnp.minimum(1.0, speed_cap / jnp.maximum(norm, 1e-9))
+
     def policy(obs, state, key):
         del key
         o = obs["state"]
         rel, vel = o[layout["ee_rel_hole"]], o[layout["ee_lin_vel"]]
+        prev_pos = o[layout["prev_action"]][pos_idx]
         force = config.force_filter * o[layout["ee_force"]] + (1.0 - config.force_filter) * state["force"]
         height = rel[2] - tip_below_ee  # peg tip above the observed hole top (m)
+        xy_err = jnp.linalg.norm(rel[:2])
         phase, t = state["phase"], state["steps_in_phase"]
-        blocked = (force[2] < -config.contact_force_n) | (
-            (t > 3) & (state["z_cmd"] < height - config.blocked_depth))
         lost_contact = (force[2] > -0.3) & (height > state["contact_height"] + 0.002)
 
-        # z: an absolute commanded tip height, lowered at the phase's speed and tracked by position.
-        near_bottom = height < -depth + config.slow_zone
+        # Height above the bottom: seen from the contact height when the peg met the hole top (the
+        # observation noise cancels), else from the observed hole top.
+        referenced = state["referenced"] > 0
+        above_bottom = jnp.where(referenced, height - (state["top"] - depth), height + depth)
+        zone = jnp.where(referenced, config.careful_zone, config.slow_zone)
+        near_bottom = above_bottom < zone
         in_chamfer = height > state["contact_height"] - config.chamfer_depth
-        speed = jnp.select([(phase == DESCEND) & (state["z_cmd"] > config.hover_height), phase == DESCEND,
-                            (phase == INSERT) & near_bottom, phase == INSERT],
-                           [config.transit_speed, config.descend_speed, config.careful_speed, config.insert_speed],
-                           0.0)
-        approach_height = jnp.where(jnp.linalg.norm(rel[:2]) > config.align_radius, config.transit_height,
-                                    config.hover_height)
-        z_cmd = jnp.where(phase == APPROACH, approach_height, state["z_cmd"] - speed * dt)
-        z = to_position_action(z_cmd - height)
-        z_approach = to_position_action(z_cmd - height - config.approach_damping * vel[2])
-        z = jnp.where(phase == APPROACH,
-                      jnp.clip(z_approach, -config.approach_max_action, config.approach_max_action), z)
+        # planned from where the tip will be at the end of this step
+        ahead = above_bottom + jnp.minimum(vel[2], 0.0) * dt - zone
+        # and sped up gradually (a peg caught on the chamfer does not follow, so it is not driven into it)
+        insert_speed = jnp.clip(
+            jnp.sqrt(config.careful_speed**2 + 2.0 * config.insert_decel * jnp.maximum(ahead, 0.0)),
+            config.careful_speed,
+            jnp.minimum(config.insert_speed, jnp.maximum(-vel[2], config.careful_speed) + config.insert_accel * dt))
+        descend_speed = jnp.where(height > config.hover_height + 0.001, config.transit_speed, config.descend_speed)
+        down_speed = jnp.select([phase == DESCEND, phase == INSERT], [descend_speed, insert_speed], 0.0)
 
-        # xy: centre on the observed hole; in the spiral, track an Archimedean spiral around it and
-        # hold still (damping only) once the tip starts sinking into the chamfer; in the bore, comply.
+        # Approach: free-space motion to the hover point over the observed hole (via the transit height
+        # while off in xy); descend and insert: hold xy over the hole, move down at the phase's speed.
+        approach_height = jnp.where(xy_err > config.align_radius, config.transit_height, config.hover_height)
+        v_approach = free_velocity(jnp.concatenate([-rel[:2], (approach_height - height)[None]]),
+                                   config.approach_speed)
+        # (in the bore x, y only hold still: the observed hole centre is off by the observation error)
+        v_xy = jnp.where(phase == DESCEND, free_velocity(-rel[:2], config.approach_speed), jnp.zeros(2))
+        v_hold = jnp.concatenate([v_xy, -down_speed[None]])
+        v_cmd = jnp.where(phase == APPROACH, v_approach, v_hold)
+        motion = velocity_action(v_cmd)
+
+        # Spiral: track an Archimedean spiral around the observed hole (with velocity feed-forward) and
+        # hold still once the tip starts sinking into the chamfer.
         radius = config.spiral_pitch * state["theta"] / (2.0 * jnp.pi)
         sinking = height < state["contact_height"] - config.sink_depth
-        theta = state["theta"] + jnp.where(sinking, 0.0, config.spiral_speed * dt / jnp.maximum(radius, 0.0005))
+        omega = config.spiral_speed / jnp.maximum(radius, 0.0005)
+        theta = state["theta"] + jnp.where(sinking, 0.0, omega * dt)
         theta = jnp.where(radius > config.spiral_max_radius, 0.0, theta)
-        spiral_xy = radius * jnp.array([jnp.cos(state["theta"]), jnp.sin(state["theta"])])
-        spiral_action = jnp.where(sinking, 0.0, jnp.clip((spiral_xy - rel[:2]) / acfg.pos_scale, -1.0, 1.0))
-        xy_center = jnp.clip((-rel[:2] - config.approach_damping * vel[:2]) / acfg.pos_scale, -1.0, 1.0)
-        xy = jnp.select([phase <= DESCEND, phase == SPIRAL], [xy_center, spiral_action],
-                        jnp.zeros(2))
+        c, s = jnp.cos(state["theta"]), jnp.sin(state["theta"])
+        spiral_xy = radius * jnp.array([c, s])
+        spiral_vel = config.spiral_speed * jnp.array([-s, c]) + config.spiral_pitch * omega / (2 * jnp.pi) * jnp.array([c, s])
+        spiral_target = spiral_xy + config.spiral_lead * lead_time[:2] * spiral_vel
+        spiral_action = jnp.where(sinking, 0.0, (spiral_target - rel[:2]) / acfg.pos_scale)
 
         # z under force control while searching and through the chamfer, position control otherwise;
-        # x, y under force control (0 N: compliant) through the chamfer, damped position control elsewhere.
+        # x, y under force control (0 N: compliant) through the chamfer, position control elsewhere.
         force_z = (phase == SPIRAL) | ((phase == INSERT) & in_chamfer)
         force_xy = (phase == INSERT) & in_chamfer
+        seat_z = to_position_action(state["z_cmd"] - height)
+        wanted = jnp.where(phase == SPIRAL, jnp.concatenate([spiral_action, motion[2:]]), motion)
+        wanted = jnp.where(phase == SEAT, jnp.zeros(3).at[2].set(seat_z), wanted)
+        pos_action = jnp.clip((wanted - (1.0 - ema) * prev_pos) / ema, -1.0, 1.0)
+        pos_action = jnp.where(phase == SEAT, wanted, pos_action)
         press = jnp.where(phase == SPIRAL, config.press_force_n, config.chamfer_force_n)
         action = jnp.zeros(space.size)
-        action = action.at[jnp.asarray(space.position)].set(jnp.concatenate([xy, z[None]]))
+        action = action.at[pos_idx].set(pos_action)
         action = action.at[jnp.asarray(space.selection)].set(
             jnp.array([force_xy, force_xy, force_z], jnp.float32))
         action = action.at[space.force[2]].set(jnp.where(force_z, force_z_action(press), force_z_action(0.0)))
 
-        aligned = (jnp.linalg.norm(rel[:2]) < 0.0015) & (jnp.abs(height - config.hover_height) < 0.0015)
+        # Blocked: pressing on something, or (position-controlled descent) moving down much slower
+        # than commanded for `stall_steps` steps in a row.
+        slow = (vel[2] > -config.stall_fraction * down_speed) & ~force_z & (t > 2)
+        stalled = jnp.where(slow, state["stalled"] + 1, 0)
+        blocked = (force[2] < -config.contact_force_n) | (stalled >= config.stall_steps)
+
+        aligned = ((xy_err < config.aligned_radius) & (jnp.abs(height - config.hover_height) < 0.001)
+                   & (jnp.linalg.norm(vel) < 0.01))
         dropped = height < state["contact_height"] - config.drop_depth
         next_phase = jnp.select(
             [(phase == APPROACH) & (aligned | (t >= 30)),
              (phase == DESCEND) & blocked,
-             (phase == DESCEND) & (height < -config.free_drop_depth),
+             (phase == DESCEND) & (height < -config.free_drop_depth) & (vel[2] < -0.6 * config.descend_speed),
              (phase == SPIRAL) & dropped,
              (phase == SPIRAL) & lost_contact,
-             (phase == INSERT) & blocked & near_bottom,
-             (phase == INSERT) & blocked & ~near_bottom & (t > 10),
+             (phase == INSERT) & blocked & (above_bottom < zone + 0.001),
+             (phase == INSERT) & blocked & (t > 10),
              (phase == INSERT) & in_chamfer & (t > config.chamfer_patience)],
             [DESCEND, SPIRAL, INSERT, INSERT, DESCEND, SEAT, SPIRAL, SPIRAL], phase)
         changed = next_phase != phase
+        met_top = (phase == DESCEND) & (next_phase == SPIRAL)
         new_state = {
             "phase": next_phase,
             "steps_in_phase": jnp.where(changed, 0, t + 1),
@@ -156,11 +216,11 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
             "contact_height": jnp.select(
                 [(next_phase == SPIRAL) & changed, (phase == DESCEND) & (next_phase == INSERT)],
                 [height, 0.0], state["contact_height"]),
-            # entering the bore or resuming the descent: command from the current height
-            "z_cmd": jnp.select(
-                [(((next_phase == INSERT) | (next_phase == DESCEND)) & changed) | ((phase == INSERT) & in_chamfer),
-                 (next_phase == SEAT) & changed],
-                [height, height - config.seat_depth], z_cmd),
+            # the hole top as met on a descent (the highest, should a contact come early)
+            "top": jnp.where(met_top, jnp.where(referenced, jnp.maximum(state["top"], height), height), state["top"]),
+            "referenced": jnp.where(met_top, 1.0, state["referenced"]),
+            "z_cmd": jnp.where((next_phase == SEAT) & changed, height - config.seat_depth, state["z_cmd"]),
+            "stalled": jnp.where(changed, 0, stalled),
         }
         return action, new_state
 
