@@ -46,6 +46,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run directory")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks (resumable)")
+    parser.add_argument("--time-budget-min", type=float, default=None,
+                        help="stop after the chunk that ends past this many minutes of wall clock (resumable)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     if not args.resume and args.method is None:
@@ -54,6 +56,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         value = getattr(args, name)
         if value is not None and value < 1:
             parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
+    if args.time_budget_min is not None and not (args.time_budget_min > 0 and math.isfinite(args.time_budget_min)):
+        parser.error(f"--time-budget-min must be a positive number of minutes, got {args.time_budget_min}")
     if args.hole_noise_mm is not None and not (args.hole_noise_mm >= 0 and math.isfinite(args.hole_noise_mm)):
         parser.error(f"--hole-noise-mm must be a finite number >= 0, got {args.hole_noise_mm}")
     if args.break_force is not None and not args.break_force > 0:
@@ -98,7 +102,8 @@ def main(argv=None) -> int:
 
     try:
         spec = None if args.resume else build_spec(args)
-        summary = train(spec, args.out, resume=args.resume, progress=not args.no_progress, max_chunks=args.max_chunks)
+        summary = train(spec, args.out, resume=args.resume, progress=not args.no_progress, max_chunks=args.max_chunks,
+                        time_budget_s=None if args.time_budget_min is None else 60.0 * args.time_budget_min)
     except (RunError, CheckpointError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

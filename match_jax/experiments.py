@@ -61,6 +61,8 @@ class SuiteConfig:
     only: tuple[str, ...] = tuple(SUITE)
     smoke: bool = False
     selection_in_ratio: bool = True  # MATCH runs: False = the authors' code (selection by the SSL only)
+    time_budget_min: float | None = None  # per run and call: stop training after this much wall clock
+    skip_training: bool = False  # evaluate and report the checkpoints that exist, train nothing
 
 
 def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
@@ -78,17 +80,22 @@ def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
 
 
 def train_all(cfg: SuiteConfig, log=print) -> None:
+    if cfg.skip_training:
+        return
+    budget = None if cfg.time_budget_min is None else 60.0 * cfg.time_budget_min
     for name in cfg.only:
         run_dir = cfg.out / "runs" / name
         spec = run_spec(name, cfg)
         if checkpoints.latest_step(checkpoints.latest_dir(run_dir)) is None:
             log(f"[train] {name}: starting ({spec.ppo.total_steps:,} steps x {spec.num_seeds} seeds)")
-            summary = train(spec, run_dir, progress=not cfg.smoke)
+            summary = train(spec, run_dir, progress=not cfg.smoke, time_budget_s=budget)
         else:
             if load_spec(run_dir) != spec:
                 raise ValueError(f"{run_dir} holds a run with another configuration; use another --out")
-            summary = train(None, run_dir, resume=True, progress=not cfg.smoke)
-        log(f"[train] {name}: {summary['iterations']} iterations, best success {summary['best_success_rate']}")
+            summary = train(None, run_dir, resume=True, progress=not cfg.smoke, time_budget_s=budget)
+        log(f"[train] {name}: {summary['iterations']} iterations ({summary['env_steps_per_seed']:,} env steps per "
+            f"seed{'' if summary['finished'] else ', stopped early: resumable'}), {summary['wall_clock_s']:.0f} s, "
+            f"best success {summary['best_success_rate']}")
 
 
 def evaluate_all(cfg: SuiteConfig, log=print) -> dict[str, list[dict]]:
@@ -97,6 +104,9 @@ def evaluate_all(cfg: SuiteConfig, log=print) -> dict[str, list[dict]]:
         path = cfg.out / "eval" / f"{name}.json"
         if path.exists():
             results[name] = json.loads(path.read_text())
+            continue
+        if checkpoints.read_best_record(cfg.out / "runs" / name, 0) is None:
+            log(f"[eval] {name}: no checkpoint yet, skipped")
             continue
         spec = run_spec(name, cfg)
         start = time.time()
@@ -217,6 +227,10 @@ def parse_args(argv=None) -> SuiteConfig:
     parser.add_argument("--episodes", type=int, default=100, help="Table 1 episodes per seed")
     parser.add_argument("--sweep-episodes", type=int, default=500, help="noise-sweep episodes per seed")
     parser.add_argument("--only", default=",".join(SUITE), help=f"comma-separated subset of {list(SUITE)}")
+    parser.add_argument("--time-budget-min", type=float, default=None,
+                        help="per run: stop training after the chunk that ends past this many minutes (resumable)")
+    parser.add_argument("--skip-training", action="store_true",
+                        help="train nothing: evaluate and report the checkpoints that exist")
     parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
                         help="MATCH runs leave the selection term out of the PPO ratio (the authors' code)")
@@ -229,12 +243,15 @@ def parse_args(argv=None) -> SuiteConfig:
         value = getattr(args, name)
         if value is not None and value < 1:
             parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
+    if args.time_budget_min is not None and not (args.time_budget_min > 0 and math.isfinite(args.time_budget_min)):
+        parser.error(f"--time-budget-min must be a positive number of minutes, got {args.time_budget_min}")
+    common = dict(out=args.out, only=only, selection_in_ratio=not args.selection_not_in_ratio,
+                  time_budget_min=args.time_budget_min, skip_training=args.skip_training)
     if args.smoke:
-        return SuiteConfig(out=args.out, preset="tiny", seeds=2, total_steps=None, episodes=2, sweep_episodes=2,
-                           only=only, smoke=True, selection_in_ratio=not args.selection_not_in_ratio)
-    return SuiteConfig(out=args.out, preset=args.preset, seeds=args.seeds, total_steps=args.total_steps,
-                       episodes=args.episodes, sweep_episodes=args.sweep_episodes, only=only,
-                       selection_in_ratio=not args.selection_not_in_ratio)
+        return SuiteConfig(preset="tiny", seeds=2, total_steps=None, episodes=2, sweep_episodes=2, smoke=True,
+                           **common)
+    return SuiteConfig(preset=args.preset, seeds=args.seeds, total_steps=args.total_steps,
+                       episodes=args.episodes, sweep_episodes=args.sweep_episodes, **common)
 
 
 def main(argv=None) -> int:

@@ -197,12 +197,17 @@ def read_metrics(run_dir: str | pathlib.Path) -> list[dict]:
 
 
 def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = False, progress: bool = True,
-          max_chunks: int | None = None) -> dict:
+          max_chunks: int | None = None, time_budget_s: float | None = None) -> dict:
     """Train (or, with resume=True, continue) a run in `run_dir`; returns a summary dict.
 
     With resume the spec is read from run_dir/config.json (`spec` may be None). `max_chunks` stops
-    after that many chunks (tests, time-boxed runs); the run can be resumed later.
+    after that many chunks (tests); `time_budget_s` stops after the first chunk that ends more than
+    that many seconds (wall clock, compilation included) after the call began. Either way the run is
+    checkpointed and can be resumed later.
     """
+    if time_budget_s is not None and not time_budget_s > 0:
+        raise RunError(f"time budget must be > 0 seconds, got {time_budget_s}")
+    call_start = time.time()
     run_dir = pathlib.Path(run_dir)
     latest = checkpoints.latest_dir(run_dir)
     if resume:
@@ -242,7 +247,8 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     last_rows: list[dict] = []
     previous_handler = _stop_on_sigterm()
     try:
-        while done_chunks < chunks_total and (max_chunks is None or chunks_run < max_chunks):
+        while (done_chunks < chunks_total and (max_chunks is None or chunks_run < max_chunks)
+               and (time_budget_s is None or chunks_run == 0 or time.time() - call_start < time_budget_s)):
             state, metrics = run.chunk(state)
             rows = _rows(metrics, spec.seed)
             with (run_dir / "metrics.jsonl").open("a") as f:

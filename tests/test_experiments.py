@@ -29,6 +29,9 @@ def test_smoke_suite_writes_report_and_plots(tmp_path):
     mtime = (out / "eval" / "match.json").stat().st_mtime
     assert experiments.main(["--smoke", "--out", str(out), "--only", "match"]) == 0
     assert (out / "eval" / "match.json").stat().st_mtime == mtime
+    # --skip-training reports what exists: a run never trained is skipped, not an error
+    assert experiments.main(["--smoke", "--out", str(out), "--only", "pose,match,vices", "--skip-training"]) == 0
+    assert not (out / "runs" / "vices").exists() and "| VICES |" not in (out / "REPORT.md").read_text()
 
 
 def test_quickstart_notebook_runs(tmp_path, monkeypatch):

@@ -41,7 +41,7 @@ def test_each_method_trains_and_checkpoints_restore_bit_identically(method, tmp_
 
 def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path):
     """Two chunks straight vs one chunk, 'interrupt', resume, one more: identical metrics and state."""
-    spec = RunSpec(ppo=get_preset("tiny", method="match", total_steps=3 * 32), num_seeds=2)
+    spec = RunSpec(ppo=get_preset("tiny", method="match", total_steps=4 * 32), num_seeds=2)
     straight, split = tmp_path / "straight", tmp_path / "split"
     train(spec, straight, progress=False, max_chunks=2)
     first = train(spec, split, progress=False, max_chunks=1)
@@ -73,9 +73,12 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path):
         assert column in result["aggregate"]
     assert 0.0 < result["aggregate"]["p_force_free"]["mean"] < 0.2  # barely trained: ~0.07 at initialisation
     assert sum(result["selection_profile"]["episodes"]) >= 4
-    # finishing: a third resume completes the 3-iteration budget
+    # a time budget that is already spent still runs one chunk, then stops, resumable
+    budgeted = train(None, split, resume=True, progress=False, time_budget_s=1e-3)
+    assert budgeted["iterations"] == 3 and not budgeted["finished"]
+    # finishing: one more resume completes the 4-iteration budget
     done = train(None, split, resume=True, progress=False)
-    assert done["finished"] and done["iterations"] == 3
+    assert done["finished"] and done["iterations"] == 4
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
@@ -88,6 +91,8 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
     assert "invalid choice: 'sac'" in error_of(["--method", "sac", "--out", str(tmp_path / "a")])
     assert "--total-steps must be a positive integer, got 0" in error_of(
         ["--method", "match", "--total-steps", "0", "--out", str(tmp_path / "a")])
+    assert "--time-budget-min must be a positive number of minutes, got -1.0" in error_of(
+        ["--method", "match", "--time-budget-min", "-1", "--out", str(tmp_path / "a")])
     (tmp_path / "empty").mkdir()
     assert train_cli.main(["--resume", "--out", str(tmp_path / "empty")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
