@@ -23,7 +23,11 @@ export JAX_DEFAULT_MATMUL_PRECISION=${JAX_DEFAULT_MATMUL_PRECISION:-highest}
 T0=$(date +%s)
 stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
 
-stamp "devices: $(python -c 'import match_jax, jax; print(jax.devices(), jax.__version__)' 2>&1 | tail -1)"
+# Probe first: on the one H200 lent so far, JAX's backend never started (no result in 525 s). Fail fast.
+if ! DEVICES=$(timeout "${PROBE_S:-90}" python -c 'import match_jax, jax; print(jax.devices(), jax.__version__)' 2>&1); then
+  stamp "JAX did not start within ${PROBE_S:-90} s (or failed): $(echo "$DEVICES" | tail -2)"; exit 3
+fi
+stamp "devices: $(echo "$DEVICES" | tail -1)"
 
 SUITE_ARGS=(--preset "$PRESET" --seeds "$SEEDS" --total-steps "$STEPS" --selection-not-in-ratio
             --episodes "$EPIS" --sweep-episodes "$SWEEP" --out "$OUT/suite")
