@@ -1,51 +1,77 @@
 #!/usr/bin/env bash
-# One GPU session, time-boxed: the experiment suite (cpu preset, 3 seeds, every method as its own
-# process on the one GPU), a paper-preset MATCH run, evaluation, REPORT.md, and env throughput.
+# One GPU session, time-boxed: train the experiment suite (cpu preset, 3 seeds, every method as its
+# own process on the one GPU) and a paper-preset MATCH run, then pack the run directories so that
+# evaluation (and further training) can go on elsewhere:
 #
-#   bash benchmarks/gpu_suite.sh OUT_DIR [TRAIN_MINUTES]
+#   bash benchmarks/gpu_suite.sh WORK_DIR [DEADLINE_S] [PACK_DIR]
 #
-# Each training process stops after the chunk that ends past TRAIN_MINUTES (default 5) of wall
-# clock and is resumable (`python -m match_jax.experiments ... --out OUT_DIR/suite` continues it).
-# Results: OUT_DIR/suite (runs, eval/*.json, REPORT.md, plots), OUT_DIR/paper_match, OUT_DIR/logs.
-# Env variables: SUITE_STEPS (env steps per seed, default 2000000), SEEDS (default 3),
-# SMOKE=1 (tiny preset: checks the script itself in a minute on a CPU).
+# DEADLINE_S (default 540) bounds the whole script: every training process gets a time budget that
+# ends about 100 s before it and is killed 40 s before it (checkpoints are written after each chunk,
+# so a kill loses only the chunk in flight). PACK_DIR (default WORK_DIR) receives suite_runs.tgz
+# (WORK_DIR/suite/runs with checkpoints: resume or evaluate them with
+# `python -m match_jax.experiments --preset cpu --seeds 3 --total-steps 2000000 --selection-not-in-ratio
+# --out DIR [--skip-training]`) and paper_match.tgz (metrics and config; its checkpoints are
+# ~100 MB and stay behind).
+# Env variables: SUITE_STEPS (env steps per seed, default 2000000), SEEDS (default 3), ONLY (suite runs,
+# default all seven), PAPER=0 (no paper-preset run), MPS=0 (no CUDA MPS daemon), PROBE_S (default 60),
+# SMOKE=1 (tiny preset: checks the script itself on a CPU).
 set -uo pipefail
-OUT=${1:?usage: gpu_suite.sh OUT_DIR [TRAIN_MINUTES]}
-MINUTES=${2:-5}
+WORK=${1:?usage: gpu_suite.sh WORK_DIR [DEADLINE_S] [PACK_DIR]}
+DEADLINE=${2:-540}
+PACK=${3:-$WORK}
 STEPS=${SUITE_STEPS:-2000000}
 SEEDS=${SEEDS:-3}
-PRESET=cpu; PAPER=paper; EPIS=100; SWEEP=200
-if [ "${SMOKE:-0}" = 1 ]; then PRESET=tiny; PAPER=tiny; STEPS=64; EPIS=2; SWEEP=2; fi
-mkdir -p "$OUT/logs"
+PRESET=cpu; PAPER_PRESET=paper
+if [ "${SMOKE:-0}" = 1 ]; then PRESET=tiny; PAPER_PRESET=tiny; STEPS=64; fi
+mkdir -p "$WORK/logs" "$PACK"
 export PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false
 # MJX's docs recommend full-precision matmuls on GPU (TF32 hurts the contact solve).
 export JAX_DEFAULT_MATMUL_PRECISION=${JAX_DEFAULT_MATMUL_PRECISION:-highest}
 T0=$(date +%s)
-stamp() { echo "[$(( $(date +%s) - T0 )) s] $*"; }
+elapsed() { echo $(( $(date +%s) - T0 )); }
+stamp() { echo "[$(elapsed) s] $*"; }
 
-# Probe first: on the one H200 lent so far, JAX's backend never started (no result in 525 s). Fail fast.
-if ! DEVICES=$(timeout "${PROBE_S:-90}" python -c 'import match_jax, jax; print(jax.devices(), jax.__version__)' 2>&1); then
-  stamp "JAX did not start within ${PROBE_S:-90} s (or failed): $(echo "$DEVICES" | tail -2)"; exit 3
+probe() {  # JAX's backend start, time-boxed (on the first H200 lent, it never returned)
+  timeout "${PROBE_S:-60}" python -c 'import match_jax, jax; print(jax.devices(), jax.__version__)' 2>&1 | tail -2
+  return "${PIPESTATUS[0]}"
+}
+# Eight processes share one GPU; MPS lets their kernels run concurrently instead of time-sliced.
+MPS_ON=0
+if [ "${MPS:-1}" = 1 ] && command -v nvidia-cuda-mps-control > /dev/null; then
+  nvidia-cuda-mps-control -d && MPS_ON=1 && stamp "CUDA MPS daemon started"
 fi
-stamp "devices: $(echo "$DEVICES" | tail -1)"
+if ! DEVICES=$(probe); then
+  stamp "probe failed (MPS=$MPS_ON): $DEVICES"
+  if [ $MPS_ON = 1 ]; then echo quit | nvidia-cuda-mps-control; MPS_ON=0; sleep 2; DEVICES=$(probe) || {
+    stamp "probe failed without MPS too: $DEVICES"; exit 3; }
+  else exit 3; fi
+fi
+stamp "devices: $DEVICES (MPS=$MPS_ON)"
+( while sleep 20; do echo "[$(elapsed) s] $(nvidia-smi --query-gpu=utilization.gpu,memory.used --format=csv,noheader 2>&1)"; done ) \
+  > "$WORK/logs/nvidia_smi.log" 2>&1 &
+SMI=$!
 
-SUITE_ARGS=(--preset "$PRESET" --seeds "$SEEDS" --total-steps "$STEPS" --selection-not-in-ratio
-            --episodes "$EPIS" --sweep-episodes "$SWEEP" --out "$OUT/suite")
-NAMES=(pose vices hybrid match match_nossl hybrid_nossl pose_noise2.5)
-for name in "${NAMES[@]}"; do
-  python -m match_jax.experiments "${SUITE_ARGS[@]}" --only "$name" --time-budget-min "$MINUTES" \
-    > "$OUT/logs/$name.log" 2>&1 &
+KILL_AT=$(( DEADLINE - 40 - $(elapsed) ))
+BUDGET_MIN=$(python -c "print(max(0.5, ($DEADLINE - 100 - $(elapsed)) / 60))")
+stamp "training: budget $BUDGET_MIN min per process, killed after $KILL_AT s"
+NAMES=${ONLY:-pose,vices,hybrid,match,match_nossl,hybrid_nossl,pose_noise2.5}
+for name in ${NAMES//,/ }; do
+  timeout "$KILL_AT" python -m match_jax.experiments --preset "$PRESET" --seeds "$SEEDS" --total-steps "$STEPS" \
+    --selection-not-in-ratio --out "$WORK/suite" --only "$name" --train-only --time-budget-min "$BUDGET_MIN" \
+    > "$WORK/logs/$name.log" 2>&1 &
 done
-( python train.py --method match --selection-not-in-ratio --preset "$PAPER" --seeds "$SEEDS" \
-    --out "$OUT/paper_match" --time-budget-min "$MINUTES" --no-progress \
-  && python eval.py "$OUT/paper_match" --episodes "$EPIS" --json "$OUT/paper_match/eval.json" ) \
-  > "$OUT/logs/paper_match.log" 2>&1 &
-wait
-stamp "training and evaluation processes done"
-for f in "$OUT"/logs/*.log; do echo "== $f"; grep -E "^\[|error|Error|success" "$f" | tail -4; done
-
-python -m match_jax.experiments "${SUITE_ARGS[@]}" --skip-training > "$OUT/logs/report.log" 2>&1
-stamp "report: $(tail -1 "$OUT/logs/report.log")"
-python benchmarks/throughput.py --batch-sizes ${BATCHES:-128,384,1024,4096} --repeats 3 \
-  --json "$OUT/throughput_gpu.json" > "$OUT/logs/throughput.log" 2>&1
-stamp "throughput done"; tail -8 "$OUT/logs/throughput.log"
+if [ "${PAPER:-1}" = 1 ]; then
+  timeout "$KILL_AT" python train.py --method match --selection-not-in-ratio --preset "$PAPER_PRESET" --seeds "$SEEDS" \
+    --out "$WORK/paper_match" --time-budget-min "$BUDGET_MIN" --no-progress > "$WORK/logs/paper_match.log" 2>&1 &
+fi
+wait $(jobs -p | grep -v "^$SMI$")
+kill $SMI 2> /dev/null
+stamp "training processes done"
+for f in "$WORK"/logs/*.log; do echo "== $f"; grep -v "^\s*$" "$f" | tail -2; done
+for run in "$WORK"/suite/runs/* "$WORK/paper_match"; do
+  [ -f "$run/metrics.csv" ] && echo "== $run: $(tail -1 "$run/metrics.csv")"
+done
+tar czf "$PACK/suite_runs.tgz" -C "$WORK" suite logs 2> /dev/null
+[ -d "$WORK/paper_match" ] && tar czf "$PACK/paper_match.tgz" -C "$WORK" --exclude=checkpoints paper_match
+[ $MPS_ON = 1 ] && echo quit | nvidia-cuda-mps-control
+stamp "packed: $(ls -la "$PACK" | tail -n +2 | awk '{print $5, $9}' | tr '\n' ' ')"

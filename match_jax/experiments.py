@@ -63,6 +63,7 @@ class SuiteConfig:
     selection_in_ratio: bool = True  # MATCH runs: False = the authors' code (selection by the SSL only)
     time_budget_min: float | None = None  # per run and call: stop training after this much wall clock
     skip_training: bool = False  # evaluate and report the checkpoints that exist, train nothing
+    train_only: bool = False  # train (or resume) the runs, evaluate and report nothing
 
 
 def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
@@ -231,6 +232,9 @@ def parse_args(argv=None) -> SuiteConfig:
                         help="per run: stop training after the chunk that ends past this many minutes (resumable)")
     parser.add_argument("--skip-training", action="store_true",
                         help="train nothing: evaluate and report the checkpoints that exist")
+    parser.add_argument("--train-only", action="store_true",
+                        help="train (or resume) the runs; no evaluation and no report (e.g. training on a GPU, "
+                             "evaluating later with --skip-training)")
     parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
                         help="MATCH runs leave the selection term out of the PPO ratio (the authors' code)")
@@ -245,8 +249,11 @@ def parse_args(argv=None) -> SuiteConfig:
             parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
     if args.time_budget_min is not None and not (args.time_budget_min > 0 and math.isfinite(args.time_budget_min)):
         parser.error(f"--time-budget-min must be a positive number of minutes, got {args.time_budget_min}")
+    if args.train_only and args.skip_training:
+        parser.error("--train-only and --skip-training exclude each other")
     common = dict(out=args.out, only=only, selection_in_ratio=not args.selection_not_in_ratio,
-                  time_budget_min=args.time_budget_min, skip_training=args.skip_training)
+                  time_budget_min=args.time_budget_min, skip_training=args.skip_training,
+                  train_only=args.train_only)
     if args.smoke:
         return SuiteConfig(preset="tiny", seeds=2, total_steps=None, episodes=2, sweep_episodes=2, smoke=True,
                            **common)
@@ -259,6 +266,9 @@ def main(argv=None) -> int:
     cfg.out.mkdir(parents=True, exist_ok=True)
     command = "python -m match_jax.experiments " + " ".join(sys.argv[1:] if argv is None else argv)
     train_all(cfg)
+    if cfg.train_only:
+        print("--train-only: no evaluation, no report")
+        return 0
     results = evaluate_all(cfg)
     path = write_report(cfg, results, command)
     print(f"wrote {path}")

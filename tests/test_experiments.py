@@ -14,6 +14,10 @@ def test_smoke_suite_writes_report_and_plots(tmp_path):
     """Every stage on two of the seven runs (a pose-control and a hybrid one) to keep CI short; the full
     `--smoke` trains and evaluates all seven the same way."""
     out = tmp_path / "suite"
+    # --train-only trains and stops: no evaluation, no report; the next call finds the run finished
+    assert experiments.main(["--smoke", "--out", str(out), "--only", "pose", "--train-only"]) == 0
+    assert (out / "runs" / "pose" / "metrics.csv").exists()
+    assert not (out / "eval").exists() and not (out / "REPORT.md").exists()
     assert experiments.main(["--smoke", "--out", str(out), "--only", "pose,match"]) == 0
     report = (out / "REPORT.md").read_text()
     for label in ("Pose", "MATCH"):
