@@ -60,7 +60,7 @@ class SuiteConfig:
     sweep_episodes: int = 500
     only: tuple[str, ...] = tuple(SUITE)
     smoke: bool = False
-    selection_in_ratio: bool = True  # MATCH runs: False = the authors' code (selection by the SSL only)
+    selection_in_ratio: bool = True  # MATCH with SSL: False = the authors' code (selection by the SSL only)
     time_budget_min: float | None = None  # per run and call: stop training after this much wall clock
     skip_training: bool = False  # evaluate and report the checkpoints that exist, train nothing
     train_only: bool = False  # train (or resume) the runs, evaluate and report nothing
@@ -71,7 +71,9 @@ def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
     overrides = {"method": method}
     if not ssl:
         overrides["ssl_coef"] = 0.0
-    if method == "match" and not cfg.selection_in_ratio:
+    if method == "match" and ssl and not cfg.selection_in_ratio:
+        # Without the SSL the selection would get no gradient at all out of the ratio, so no-SSL runs
+        # always keep it in (the paper's ablation: selection learned by RL alone).
         overrides["selection_in_ratio"] = False
     if cfg.total_steps is not None:
         overrides["total_steps"] = cfg.total_steps
@@ -171,7 +173,8 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
         f"rate), deterministic policy, {cfg.episodes} episodes per seed at the training noise (gaussian), "
         f"{max(cfg.episodes, cfg.sweep_episodes)} per seed for the uniform noise sweep. MATCH's selection term is "
         + ("in the PPO ratio (paper's equation)." if cfg.selection_in_ratio else
-           "left out of the PPO ratio (authors' code; selection trained by the SSL only).")
+           "left out of the PPO ratio (authors' code; selection trained by the SSL only); MATCH (no SSL) keeps it "
+           "in the ratio, its selection's only training signal.")
         + (" **Smoke run: tiny sizes, the numbers mean nothing.**" if cfg.smoke else ""), "",
         "## Table 1 analogue (mean +- SE over seeds; 10 N break)", "",
         "| method | success % | break % | time to success (s) | mean contact force (N) | paper success % | paper break % |",
@@ -237,7 +240,8 @@ def parse_args(argv=None) -> SuiteConfig:
                              "evaluating later with --skip-training)")
     parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
-                        help="MATCH runs leave the selection term out of the PPO ratio (the authors' code)")
+                        help="MATCH (with SSL) leaves the selection term out of the PPO ratio (the authors' code); "
+                             "MATCH no-SSL keeps it, as its selection has no other training signal")
     args = parser.parse_args(argv)
     only = tuple(x for x in args.only.split(",") if x)
     unknown = [x for x in only if x not in SUITE]

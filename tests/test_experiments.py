@@ -52,7 +52,8 @@ def test_quickstart_notebook_runs(tmp_path, monkeypatch):
 def test_suite_selection_not_in_ratio_applies_to_match_only(tmp_path):
     cfg = experiments.parse_args(["--out", str(tmp_path), "--selection-not-in-ratio"])
     assert experiments.run_spec("match", cfg).ppo.selection_in_ratio is False
-    assert experiments.run_spec("match_nossl", cfg).ppo.selection_in_ratio is False
+    # no SSL: the ratio is the selection's only training signal, so it stays in
+    assert experiments.run_spec("match_nossl", cfg).ppo.selection_in_ratio is True
     assert experiments.run_spec("hybrid", cfg).ppo.selection_in_ratio is True
     default = experiments.parse_args(["--out", str(tmp_path)])
     assert experiments.run_spec("match", default).ppo.selection_in_ratio is True

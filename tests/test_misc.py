@@ -2,7 +2,7 @@
 
 import pytest
 
-from match_jax._xla import CPU_FLAG_VALUE, merged_xla_flags
+from match_jax._xla import CPU_FLAG_VALUE, flag_supported, merged_xla_flags
 
 
 def test_xla_flags_are_merged_not_overridden():
@@ -12,12 +12,21 @@ def test_xla_flags_are_merged_not_overridden():
     assert merged_xla_flags(mine) == mine  # the user's own value wins
 
 
-def test_package_import_sets_the_flag():
+def test_flag_only_for_jaxlib_that_knows_it():
+    # jaxlib 0.11.2's XLA aborts on the flag ("Unknown flag in XLA_FLAGS"); 0.9-0.10 need it for speed
+    assert flag_supported("0.10.2") and flag_supported("0.9.2") and flag_supported("0.4.38")
+    assert not flag_supported("0.11.2") and not flag_supported("0.12.0") and not flag_supported("1.0")
+    assert flag_supported(None)
+
+
+def test_package_import_sets_the_flag_where_supported():
     import os
+    from importlib import metadata
 
     import match_jax  # noqa: F401
 
-    assert "--xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", "")
+    present = "--xla_cpu_use_fusion_emitters" in os.environ.get("XLA_FLAGS", "")
+    assert present == flag_supported(metadata.version("jaxlib"))
 
 
 @pytest.mark.parametrize("argv, message", [
