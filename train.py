@@ -29,6 +29,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--method", choices=METHODS, help="pose | vices | hybrid (Hybrid-Basic) | match")
     parser.add_argument("--no-ssl", action="store_true", help="no supervised selection loss (beta = 0)")
     parser.add_argument("--ssl-coef", type=float, default=None, help="beta of the selection loss (default 1)")
+    parser.add_argument("--ssl-after-update", action="store_true",
+                        help="experimental: SSL-only steps after the PPO epochs instead of inside every PPO loss")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
                         help="MATCH: leave the Bernoulli term out of the PPO ratio (authors' public code)")
     parser.add_argument("--preset", choices=["cpu", "paper", "tiny"], default="cpu")
@@ -84,6 +86,8 @@ def build_spec(args: argparse.Namespace):
         overrides["ssl_coef"] = args.ssl_coef
     if args.selection_not_in_ratio:
         overrides["selection_in_ratio"] = False
+    if args.ssl_after_update:
+        overrides["ssl_phase"] = "after"
     ppo = get_preset(args.preset, **overrides)
     env = FPiHConfig(control=ppo.control)
     if args.hole_noise_mm is not None:

@@ -40,6 +40,9 @@ class PPOConfig:
     method: str = "match"  # 'pose' | 'vices' | 'hybrid' (Hybrid-Basic) | 'match'
     ssl_coef: float = 1.0  # beta of the supervised selection loss; 0 = the no-SSL ablations
     selection_in_ratio: bool = True  # MATCH: Bernoulli term in the PPO ratio (paper) or not (authors' code)
+    # 'joint': the SSL is added to every PPO minibatch loss; 'after': SSL-only minibatch steps follow the
+    # PPO epochs, so the PPO ratio sees only PPO's own change of p(selection) (experimental)
+    ssl_phase: str = "joint"
     num_envs: int = 256
     rollout_steps: int = 150
     total_steps: int = 3_000_000
@@ -63,6 +66,8 @@ class PPOConfig:
     def __post_init__(self):
         if self.method not in METHODS:
             raise ValueError(f"unknown method {self.method!r}; choose one of {list(METHODS)}")
+        if self.ssl_phase not in ("joint", "after"):
+            raise ValueError(f"ssl_phase must be 'joint' or 'after', got {self.ssl_phase!r}")
         for name in ("num_envs", "rollout_steps", "total_steps", "iterations_per_chunk", "epochs", "minibatches"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
@@ -330,7 +335,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
         if dist.num_selections:
             ssl_loss = selection_loss(head.logits, batch.contact_label)
             p_force = jax.nn.sigmoid(head.logits).mean()
-            if config.uses_ssl:
+            if config.uses_ssl and config.ssl_phase == "joint":
                 total = total + config.ssl_coef * ssl_loss
         metrics = {
             "loss": total,
@@ -362,7 +367,22 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
 
             return jax.lax.scan(minibatch, (params, opt_state), shuffled)
 
-        (params, opt_state), metrics = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, config.epochs))
+        epoch_keys = jax.random.split(key, config.epochs + 1)
+        (params, opt_state), metrics = jax.lax.scan(epoch, (params, opt_state), epoch_keys[:-1])
+        if config.uses_ssl and config.ssl_phase == "after":
+            # one epoch of SSL-only minibatch steps, after PPO has finished with this rollout
+            perm = jax.random.permutation(epoch_keys[-1], n)
+            obs, labels = (x[perm].reshape((config.minibatches, n // config.minibatches) + x.shape[1:])
+                           for x in (flat[0].policy_obs, flat[0].contact_label))
+
+            def ssl_step(carry, mb):
+                params, opt_state = carry
+                grads = jax.grad(lambda p: config.ssl_coef * selection_loss(
+                    actor.apply(p["actor"], mb[0]).logits, mb[1]))(params)
+                updates, opt_state = optimizer.update(grads, opt_state, params)
+                return (optax.apply_updates(params, updates), opt_state), None
+
+            (params, opt_state), _ = jax.lax.scan(ssl_step, (params, opt_state), (obs, labels))
         return params, opt_state, jax.tree_util.tree_map(jnp.mean, metrics)
 
     # ----------------------------------------------------------------------------- iteration

@@ -77,6 +77,7 @@ def test_gae_bootstraps_time_outs_and_not_breaks():
     ("num_envs", -4, "num_envs must be a positive integer, got -4"),
     ("gamma", 1.5, "gamma must be in"),
     ("ssl_coef", -1.0, "ssl_coef must be >= 0"),
+    ("ssl_phase", "before", "ssl_phase must be 'joint' or 'after', got 'before'"),
 ])
 def test_bad_config_is_named(field, value, match):
     with pytest.raises(ValueError, match=match):

@@ -28,9 +28,11 @@ def _leaves_equal(a, b) -> bool:
         and np.array_equal(np.asarray(x), np.asarray(y), equal_nan=True) for x, y in zip(la, lb))
 
 
-@pytest.mark.parametrize("method", ["pose", "vices", "hybrid"])
+@pytest.mark.parametrize("method", ["pose", "vices", "hybrid", "match-ssl-after"])
 def test_each_method_trains_and_checkpoints_restore_bit_identically(method, tmp_path):
-    run = Run(RunSpec(ppo=get_preset("tiny", method=method), num_seeds=1), tmp_path)
+    # match-ssl-after: MATCH with the SSL in its own steps after the PPO epochs (ssl_phase='after')
+    overrides = dict(method="match", ssl_phase="after") if method == "match-ssl-after" else dict(method=method)
+    run = Run(RunSpec(ppo=get_preset("tiny", **overrides), num_seeds=1), tmp_path)
     state, metrics = run.chunk(run.initial_state())
     for key in ("loss", "policy_loss", "value_loss", "entropy"):
         assert np.all(np.isfinite(np.asarray(metrics[key]))), key
