@@ -113,8 +113,8 @@ def evaluate_all(cfg: SuiteConfig, log=print) -> dict[str, list[dict]]:
             continue
         spec = run_spec(name, cfg)
         start = time.time()
-        # Table 1 at the training noise (gaussian) and the uniform sweep share one compiled rollout; the
-        # sweep uses sweep_episodes, Table 1 the first `episodes` of them.
+        # Table 1 at the training noise (gaussian) and the uniform sweep share one compiled rollout, so
+        # every setting runs max(episodes, sweep_episodes) episodes per seed.
         episodes = max(cfg.episodes, cfg.sweep_episodes)
         specs = [(spec.env.hole_obs_noise * 1000.0, "gaussian")] + [(x, "uniform") for x in SWEEP_MM]
         grid = evaluate_run_grid(cfg.out / "runs" / name, episodes, noise_specs=specs,
@@ -170,8 +170,8 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
         f"Command: `{command}`", "",
         f"Preset `{cfg.preset}`: {preset.num_envs} envs per seed, {cfg.total_steps or preset.total_steps:,} env steps "
         f"per seed, {cfg.seeds} seeds per method. Evaluation: best checkpoint per seed (highest training success "
-        f"rate), deterministic policy, {cfg.episodes} episodes per seed at the training noise (gaussian), "
-        f"{max(cfg.episodes, cfg.sweep_episodes)} per seed for the uniform noise sweep. MATCH's selection term is "
+        f"rate), deterministic policy, {max(cfg.episodes, cfg.sweep_episodes)} episodes per seed at the training "
+        f"noise (gaussian) and at each level of the uniform noise sweep. MATCH's selection term is "
         + ("in the PPO ratio (paper's equation)." if cfg.selection_in_ratio else
            "left out of the PPO ratio (authors' code; selection trained by the SSL only); MATCH (no SSL) keeps it "
            "in the ratio, its selection's only training signal.")
@@ -228,7 +228,7 @@ def parse_args(argv=None) -> SuiteConfig:
     parser.add_argument("--preset", choices=["cpu", "paper", "tiny"], default="cpu")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--total-steps", type=int, default=None)
-    parser.add_argument("--episodes", type=int, default=100, help="Table 1 episodes per seed")
+    parser.add_argument("--episodes", type=int, default=100, help="Table 1 episodes per seed (every setting runs max(--episodes, --sweep-episodes))")
     parser.add_argument("--sweep-episodes", type=int, default=500, help="noise-sweep episodes per seed")
     parser.add_argument("--only", default=",".join(SUITE), help=f"comma-separated subset of {list(SUITE)}")
     parser.add_argument("--time-budget-min", type=float, default=None,
