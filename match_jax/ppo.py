@@ -353,11 +353,14 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
         n = config.steps_per_iteration
         flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[2:]), (traj, adv, returns))
 
+        def shuffled_minibatches(perm_key, tree):
+            """`tree` (leading axis n) shuffled and split into (minibatches, n / minibatches, ...)."""
+            perm = jax.random.permutation(perm_key, n)
+            return jax.tree_util.tree_map(
+                lambda x: x[perm].reshape((config.minibatches, n // config.minibatches) + x.shape[1:]), tree)
+
         def epoch(carry, epoch_key):
             params, opt_state = carry
-            perm = jax.random.permutation(epoch_key, n)
-            shuffled = jax.tree_util.tree_map(
-                lambda x: x[perm].reshape((config.minibatches, n // config.minibatches) + x.shape[1:]), flat)
 
             def minibatch(carry, mb):
                 params, opt_state = carry
@@ -365,24 +368,22 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
                 updates, opt_state = optimizer.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), metrics
 
-            return jax.lax.scan(minibatch, (params, opt_state), shuffled)
+            return jax.lax.scan(minibatch, (params, opt_state), shuffled_minibatches(epoch_key, flat))
 
-        epoch_keys = jax.random.split(key, config.epochs + 1)
-        (params, opt_state), metrics = jax.lax.scan(epoch, (params, opt_state), epoch_keys[:-1])
+        (params, opt_state), metrics = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, config.epochs))
         if config.uses_ssl and config.ssl_phase == "after":
             # one epoch of SSL-only minibatch steps, after PPO has finished with this rollout
-            perm = jax.random.permutation(epoch_keys[-1], n)
-            obs, labels = (x[perm].reshape((config.minibatches, n // config.minibatches) + x.shape[1:])
-                           for x in (flat[0].policy_obs, flat[0].contact_label))
-
             def ssl_step(carry, mb):
                 params, opt_state = carry
+                obs, labels = mb
                 grads = jax.grad(lambda p: config.ssl_coef * selection_loss(
-                    actor.apply(p["actor"], mb[0]).logits, mb[1]))(params)
+                    actor.apply(p["actor"], obs).logits, labels))(params)
                 updates, opt_state = optimizer.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), None
 
-            (params, opt_state), _ = jax.lax.scan(ssl_step, (params, opt_state), (obs, labels))
+            batches = shuffled_minibatches(jax.random.fold_in(key, config.epochs),
+                                           (flat[0].policy_obs, flat[0].contact_label))
+            (params, opt_state), _ = jax.lax.scan(ssl_step, (params, opt_state), batches)
         return params, opt_state, jax.tree_util.tree_map(jnp.mean, metrics)
 
     # ----------------------------------------------------------------------------- iteration
