@@ -31,6 +31,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--ssl-coef", type=float, default=None, help="beta of the selection loss (default 1)")
     parser.add_argument("--ssl-after-update", action="store_true",
                         help="experimental: SSL-only steps after the PPO epochs instead of inside every PPO loss")
+    parser.add_argument("--ssl-contact-only", action="store_true",
+                        help="experimental: average the SSL over in-contact steps only (no SSL pull in free space)")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
                         help="MATCH: leave the Bernoulli term out of the PPO ratio (authors' public code)")
     parser.add_argument("--preset", choices=["cpu", "paper", "tiny"], default="cpu")
@@ -88,6 +90,8 @@ def build_spec(args: argparse.Namespace):
         overrides["selection_in_ratio"] = False
     if args.ssl_after_update:
         overrides["ssl_phase"] = "after"
+    if args.ssl_contact_only:
+        overrides["ssl_samples"] = "contact"
     ppo = get_preset(args.preset, **overrides)
     env = FPiHConfig(control=ppo.control)
     if args.hole_noise_mm is not None:

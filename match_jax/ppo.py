@@ -43,6 +43,9 @@ class PPOConfig:
     # 'joint': the SSL is added to every PPO minibatch loss; 'after': SSL-only minibatch steps follow the
     # PPO epochs, so the PPO ratio sees only PPO's own change of p(selection) (experimental)
     ssl_phase: str = "joint"
+    # which samples the SSL averages over: 'all' (the paper) or 'contact' (only steps with at least one
+    # axis in contact: the SSL then only pulls p_force up in contact and leaves free space to PPO; experimental)
+    ssl_samples: str = "all"
     num_envs: int = 256
     rollout_steps: int = 150
     total_steps: int = 3_000_000
@@ -68,6 +71,8 @@ class PPOConfig:
             raise ValueError(f"unknown method {self.method!r}; choose one of {list(METHODS)}")
         if self.ssl_phase not in ("joint", "after"):
             raise ValueError(f"ssl_phase must be 'joint' or 'after', got {self.ssl_phase!r}")
+        if self.ssl_samples not in ("all", "contact"):
+            raise ValueError(f"ssl_samples must be 'all' or 'contact', got {self.ssl_samples!r}")
         for name in ("num_envs", "rollout_steps", "total_steps", "iterations_per_chunk", "epochs", "minibatches"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
@@ -141,12 +146,17 @@ class Trainer(NamedTuple):
     distribution: Any
 
 
-def selection_loss(logits: jax.Array, contact_label: jax.Array) -> jax.Array:
+def selection_loss(logits: jax.Array, contact_label: jax.Array, contact_only: bool = False) -> jax.Array:
     """Supervised selection loss (before beta): sum over axes of BCE(p_force, psi), mean over the batch.
 
     logits: (..., 3) selection logits (log-odds of force control); contact_label: (..., 3) 0/1 per axis.
+    contact_only: average over the samples with at least one axis in contact only (0 if there are none).
     """
-    return optax.sigmoid_binary_cross_entropy(logits, contact_label).sum(-1).mean()
+    per_sample = optax.sigmoid_binary_cross_entropy(logits, contact_label).sum(-1)
+    if not contact_only:
+        return per_sample.mean()
+    weight = contact_label.max(-1)
+    return (per_sample * weight).sum() / jnp.maximum(weight.sum(), 1.0)
 
 
 def generalized_advantages(reward, value, final_value, last_value, done, truncation, gamma: float,
@@ -332,9 +342,14 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
         total = pg_loss + config.value_coef * value_loss - config.entropy_coef * entropy
         ssl_loss = jnp.zeros(())
         p_force = jnp.zeros(())
+        contact_stats = {}
         if dist.num_selections:
-            ssl_loss = selection_loss(head.logits, batch.contact_label)
-            p_force = jax.nn.sigmoid(head.logits).mean()
+            ssl_loss = selection_loss(head.logits, batch.contact_label, config.ssl_samples == "contact")
+            p_axes = jax.nn.sigmoid(head.logits).mean(-1)
+            p_force = p_axes.mean()
+            in_contact = batch.contact_label.max(-1)
+            contact_stats = {"_p_force_contact_sum": (p_axes * in_contact).sum(), "_contact_count": in_contact.sum(),
+                             "_p_force_free_sum": (p_axes * (1.0 - in_contact)).sum()}
             if config.uses_ssl and config.ssl_phase == "joint":
                 total = total + config.ssl_coef * ssl_loss
         metrics = {
@@ -346,6 +361,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
             "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),
             "clip_fraction": jnp.mean(jnp.abs(ratio - 1.0) > config.clip_eps),
             "p_force": p_force,
+            **contact_stats,
         }
         return total, metrics
 
@@ -377,14 +393,23 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
                 params, opt_state = carry
                 obs, labels = mb
                 grads = jax.grad(lambda p: config.ssl_coef * selection_loss(
-                    actor.apply(p["actor"], obs).logits, labels))(params)
+                    actor.apply(p["actor"], obs).logits, labels, config.ssl_samples == "contact"))(params)
                 updates, opt_state = optimizer.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), None
 
             batches = shuffled_minibatches(jax.random.fold_in(key, config.epochs),
                                            (flat[0].policy_obs, flat[0].contact_label))
             (params, opt_state), _ = jax.lax.scan(ssl_step, (params, opt_state), batches)
-        return params, opt_state, jax.tree_util.tree_map(jnp.mean, metrics)
+        metrics = jax.tree_util.tree_map(jnp.mean, metrics)
+        # mean p_force over the in-contact and the free-space samples (NaN where there are none)
+        contact = metrics.pop("_contact_count", jnp.zeros(()))  # per minibatch, averaged
+        free = n / config.minibatches - contact
+        selections = bool(dist.num_selections)
+        metrics["p_force_contact"] = jnp.where(selections & (contact > 0), metrics.pop("_p_force_contact_sum", 0.0)
+                                               / jnp.maximum(contact, 1.0), jnp.nan)
+        metrics["p_force_free"] = jnp.where(selections & (free > 0), metrics.pop("_p_force_free_sum", 0.0)
+                                            / jnp.maximum(free, 1.0), jnp.nan)
+        return params, opt_state, metrics
 
     # ----------------------------------------------------------------------------- iteration
     def iteration(ts: TrainState, _):

@@ -34,7 +34,7 @@ from match_jax.ppo import PPOConfig, Trainer, TrainState, make_env, make_trainer
 
 LOGGED = ("iteration", "env_steps", "success_rate", "break_rate", "episodes", "mean_reward", "contact_fraction",
           "loss", "policy_loss", "value_loss", "ssl_loss", "entropy", "approx_kl", "clip_fraction", "p_force",
-          "action_std")
+          "action_std", "p_force_contact", "p_force_free")
 
 
 class RunError(ValueError):
@@ -185,7 +185,8 @@ def _write_csv(jsonl: pathlib.Path, csv_path: pathlib.Path) -> None:
     if not rows:
         return
     with csv_path.open("w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        # every key of every row, in order of appearance (a run resumed by a newer version logs more columns)
+        writer = csv.DictWriter(f, fieldnames=list(dict.fromkeys(k for row in rows for k in row)))
         writer.writeheader()
         writer.writerows(rows)
 

@@ -153,6 +153,17 @@ def test_selection_loss_gradient_pushes_p_force_toward_the_label():
     assert abs(float(selection_loss(logits, labels)) - expected) < 1e-6
 
 
+def test_contact_only_selection_loss_ignores_free_space_samples():
+    labels = jnp.array([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 1.0, 1.0]])
+    logits = jnp.array([[0.3, -1.0, 2.0], [5.0, 5.0, 5.0], [-0.5, 0.1, 0.7]])
+    grad = jax.grad(selection_loss)(logits, labels, True)
+    np.testing.assert_array_equal(np.asarray(grad[1]), 0.0)  # the free-space sample gets no SSL gradient
+    assert np.all(np.abs(np.asarray(grad[jnp.array([0, 2])])) > 0)
+    in_contact = selection_loss(logits[jnp.array([0, 2])], labels[jnp.array([0, 2])])
+    assert abs(float(selection_loss(logits, labels, True)) - float(in_contact)) < 1e-6
+    assert float(selection_loss(logits, jnp.zeros_like(labels), True)) == 0.0  # no contact at all: no loss
+
+
 def test_unknown_method_is_named():
     with pytest.raises(ValueError, match="'sac'"):
         D.make_distribution("sac")

@@ -78,6 +78,7 @@ def test_gae_bootstraps_time_outs_and_not_breaks():
     ("gamma", 1.5, "gamma must be in"),
     ("ssl_coef", -1.0, "ssl_coef must be >= 0"),
     ("ssl_phase", "before", "ssl_phase must be 'joint' or 'after', got 'before'"),
+    ("ssl_samples", "free", "ssl_samples must be 'all' or 'contact', got 'free'"),
 ])
 def test_bad_config_is_named(field, value, match):
     with pytest.raises(ValueError, match=match):
