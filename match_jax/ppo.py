@@ -33,12 +33,17 @@ from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
 from match_jax.networks import Actor, Critic, NetworkConfig
 
 
+MATCH_IN_RATIO_SSL_BETA = 0.1  # default SSL weight of MATCH with the selection term in the PPO ratio
+
+
 @dataclasses.dataclass(frozen=True)
 class PPOConfig:
     """Method, sizes and learning hyperparameters. Steps are env (policy) steps per seed."""
 
     method: str = "match"  # 'pose' | 'vices' | 'hybrid' (Hybrid-Basic) | 'match'
-    ssl_coef: float = 1.0  # beta of the supervised selection loss; 0 = the no-SSL ablations
+    # beta of the supervised selection loss; 0 = the no-SSL ablations; None = the method's default
+    # (`ssl_beta`): 0.1 for MATCH with the selection term in the ratio, else 1 (README, "Training results")
+    ssl_coef: float | None = None
     selection_in_ratio: bool = True  # MATCH: Bernoulli term in the PPO ratio (paper) or not (authors' code)
     # 'joint': the SSL is added to every PPO minibatch loss; 'after': SSL-only minibatch steps follow the
     # PPO epochs, so the PPO ratio sees only PPO's own change of p(selection) (experimental)
@@ -87,7 +92,7 @@ class PPOConfig:
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
         for name in ("ssl_coef", "value_coef", "entropy_coef"):
-            if not getattr(self, name) >= 0:
+            if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
 
     @property
@@ -104,7 +109,15 @@ class PPOConfig:
 
     @property
     def uses_ssl(self) -> bool:
-        return self.method in ("hybrid", "match") and self.ssl_coef > 0
+        return self.method in ("hybrid", "match") and self.ssl_beta > 0
+
+    @property
+    def ssl_beta(self) -> float:
+        """The SSL weight in use: ssl_coef, or where that is None 0.1 for MATCH with the selection term in
+        the PPO ratio (with beta 1 that combination learned slowly or not at all) and 1 otherwise."""
+        if self.ssl_coef is not None:
+            return float(self.ssl_coef)
+        return MATCH_IN_RATIO_SSL_BETA if self.method == "match" and self.selection_in_ratio else 1.0
 
 
 class Transition(NamedTuple):
@@ -351,7 +364,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
             contact_stats = {"_p_force_contact_sum": (p_axes * in_contact).sum(), "_contact_count": in_contact.sum(),
                              "_p_force_free_sum": (p_axes * (1.0 - in_contact)).sum()}
             if config.uses_ssl and config.ssl_phase == "joint":
-                total = total + config.ssl_coef * ssl_loss
+                total = total + config.ssl_beta * ssl_loss
         metrics = {
             "loss": total,
             "policy_loss": pg_loss,
@@ -392,7 +405,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
             def ssl_step(carry, mb):
                 params, opt_state = carry
                 obs, labels = mb
-                grads = jax.grad(lambda p: config.ssl_coef * selection_loss(
+                grads = jax.grad(lambda p: config.ssl_beta * selection_loss(
                     actor.apply(p["actor"], obs).logits, labels, config.ssl_samples == "contact"))(params)
                 updates, opt_state = optimizer.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), None

@@ -109,7 +109,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
             result = {
                 "run_dir": str(run_dir),
                 "method": spec.ppo.method,
-                "ssl_coef": spec.ppo.ssl_coef,
+                "ssl_coef": spec.ppo.ssl_beta,
                 "checkpoint": checkpoint,
                 "episodes_per_seed": episodes,
                 "seeds": spec.num_seeds,

@@ -2,6 +2,8 @@
 
 import match_jax  # noqa: F401
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -83,3 +85,13 @@ def test_gae_bootstraps_time_outs_and_not_breaks():
 def test_bad_config_is_named(field, value, match):
     with pytest.raises(ValueError, match=match):
         PPOConfig(**{field: value})
+
+
+def test_ssl_beta_defaults_per_method_and_ratio():
+    assert PPOConfig(method="match").ssl_beta == 0.1  # the paper's ratio: beta 1 learned slowly or not at all
+    assert PPOConfig(method="match", selection_in_ratio=False).ssl_beta == 1.0  # authors' ratio
+    assert PPOConfig(method="hybrid").ssl_beta == 1.0
+    assert PPOConfig(method="match", ssl_coef=1.0).ssl_beta == 1.0  # an explicit beta wins
+    assert not PPOConfig(method="match", ssl_coef=0.0).uses_ssl
+    # a preset built for MATCH keeps the per-method default when another method is swapped in
+    assert dataclasses.replace(PPOConfig(method="match"), method="hybrid").ssl_beta == 1.0
