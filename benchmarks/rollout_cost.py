@@ -39,17 +39,7 @@ from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
 from match_jax.networks import Actor
 from match_jax.presets import get_preset
 from match_jax.sim import mjx
-
-
-def _timed(fn, x, repeats: int) -> float:
-    x = fn(x)
-    x = fn(x)  # weak types settle after the first call
-    jax.block_until_ready(x)
-    start = time.perf_counter()
-    for _ in range(repeats):
-        x = fn(x)
-    jax.block_until_ready(x)
-    return (time.perf_counter() - start) / repeats
+from throughput import _timed  # benchmarks/ is on sys.path when this script runs
 
 
 def rollout_costs(batch: int, steps: int, repeats: int) -> list[dict]:
