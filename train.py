@@ -28,7 +28,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--method", choices=METHODS, help="pose | vices | hybrid (Hybrid-Basic) | match")
     parser.add_argument("--no-ssl", action="store_true", help="no supervised selection loss (beta = 0)")
-    parser.add_argument("--ssl-coef", type=float, default=None, help="beta of the selection loss (default: 0.1 for MATCH with the selection term in the ratio, else 1)")
+    parser.add_argument("--ssl-coef", type=float, default=None,
+                        help="beta of the selection loss (default: 0.1 for MATCH with the selection term in "
+                             "the ratio, else 1)")
     parser.add_argument("--ssl-after-update", action="store_true",
                         help="experimental: SSL-only steps after the PPO epochs instead of inside every PPO loss")
     parser.add_argument("--ssl-contact-only", action="store_true",

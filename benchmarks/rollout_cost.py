@@ -71,8 +71,9 @@ def rollout_costs(batch: int, steps: int, repeats: int) -> list[dict]:
         def run(carry):
             state, key = carry
             key, sub = jax.random.split(key)
-            state, (contact, _) = jax.lax.scan(body, state, jax.random.split(sub, steps))
-            return state, key, contact
+            state, (contact, out) = jax.lax.scan(body, state, jax.random.split(sub, steps))
+            # return a reduction of the policy's outputs: unused scan outputs would be dead code under jit
+            return state, key, contact, jax.tree_util.tree_map(jnp.sum, out)
 
         return run
 
@@ -83,9 +84,9 @@ def rollout_costs(batch: int, steps: int, repeats: int) -> list[dict]:
         contact = []
 
         def call(carry, run=run, contact=contact):
-            state, key, c = run(carry[:2])
+            state, key, c, out = run(carry[:2])
             contact.append(c)
-            return state, key
+            return state, key, out
 
         seconds = _timed(call, (state0, jax.random.PRNGKey(1)), repeats)
         c = np.asarray(jnp.stack(contact[-repeats:]))  # (repeats, steps, batch)

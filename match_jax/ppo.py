@@ -361,8 +361,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
             p_axes = jax.nn.sigmoid(head.logits).mean(-1)
             p_force = p_axes.mean()
             in_contact = batch.contact_label.max(-1)
-            contact_stats = {"_p_force_contact_sum": (p_axes * in_contact).sum(), "_contact_count": in_contact.sum(),
-                             "_p_force_free_sum": (p_axes * (1.0 - in_contact)).sum()}
+            contact_stats = {"_p_force_contact_sum": (p_axes * in_contact).sum(), "_contact_count": in_contact.sum()}
             if config.uses_ssl and config.ssl_phase == "joint":
                 total = total + config.ssl_beta * ssl_loss
         metrics = {
@@ -414,14 +413,16 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
                                            (flat[0].policy_obs, flat[0].contact_label))
             (params, opt_state), _ = jax.lax.scan(ssl_step, (params, opt_state), batches)
         metrics = jax.tree_util.tree_map(jnp.mean, metrics)
-        # mean p_force over the in-contact and the free-space samples (NaN where there are none)
-        contact = metrics.pop("_contact_count", jnp.zeros(()))  # per minibatch, averaged
-        free = n / config.minibatches - contact
-        selections = bool(dist.num_selections)
-        metrics["p_force_contact"] = jnp.where(selections & (contact > 0), metrics.pop("_p_force_contact_sum", 0.0)
-                                               / jnp.maximum(contact, 1.0), jnp.nan)
-        metrics["p_force_free"] = jnp.where(selections & (free > 0), metrics.pop("_p_force_free_sum", 0.0)
-                                            / jnp.maximum(free, 1.0), jnp.nan)
+        # mean p_force over the in-contact and the free-space samples (NaN where there are none), from the
+        # per-minibatch sums and counts averaged above (the free-space sum is the total minus the in-contact sum)
+        if dist.num_selections:
+            size = n / config.minibatches
+            contact, contact_sum = metrics.pop("_contact_count"), metrics.pop("_p_force_contact_sum")
+            free, free_sum = size - contact, metrics["p_force"] * size - contact_sum
+            metrics["p_force_contact"] = jnp.where(contact > 0, contact_sum / jnp.maximum(contact, 1.0), jnp.nan)
+            metrics["p_force_free"] = jnp.where(free > 0, free_sum / jnp.maximum(free, 1.0), jnp.nan)
+        else:
+            metrics["p_force_contact"] = metrics["p_force_free"] = jnp.full((), jnp.nan)
         return params, opt_state, metrics
 
     # ----------------------------------------------------------------------------- iteration
