@@ -85,7 +85,8 @@ Other differences that remain (Brax as it is used here vs ours):
   critic also gets the episode-time fraction (steps / 150), Brax's does not.
 - policy distribution: both tanh-squashed Gaussians with log-probs from the pre-tanh value; Brax's
   std is a state-dependent network output (softplus(x) + 0.001, ~0.7 for x near 0 at init), ours a
-  state-independent parameter (exp(-0.7) = 0.50 at init).
+  state-independent parameter (the cpu preset's exp(-2) = 0.14 at init), so the two explore
+  differently; how much each touches the block is measured (below).
 - observation normalisation: both running mean/std per key; Brax updates the statistics with the
   new batch BEFORE its SGD epochs and clips nothing (std_eps 0), ours normalises a rollout with the
   statistics from before it and clips normalised values to +-10.
@@ -97,7 +98,18 @@ Other differences that remain (Brax as it is used here vs ours):
   transitions; the same number of samples per minibatch.
 - optimiser: Brax clips the global gradient norm over actor+critic together and uses Adam eps 1e-8;
   ours clips actor and critic separately and uses eps 1e-5.
-- Brax runs its training epoch under `jax.pmap` over 1 device; ours under `jax.jit`.
+- devices: `import match_jax` gives JAX one CPU device per core (`match_jax._xla`), and both trainers
+  split the envs over them: Brax runs its training epoch under `jax.pmap` over all local devices (its
+  default), ours under `jax.jit` with the env axis sharded (`training.shard_envs`, as train.py does).
+  `config.host_devices` records the count; JAX_NUM_CPU_DEVICES=1 gives the one-device comparison.
+
+Contact load. MJX's constraint solver is a while loop that, under vmap, runs until the slowest env of
+the batch converges, so a batch step with any env touching the block costs up to ~2.3x a free-space
+one (`benchmarks/rollout_cost.py`): env steps/s depends on how much a trainer's policy touches. At
+each evaluation point both trainers' STOCHASTIC policies (their training-time sampling) are also run
+on the same evaluation episodes, and the fraction of env-steps in contact is recorded
+(`explore_contact_rate`), so per-interval speeds can be compared at similar contact loads (ours also
+logs the contact fraction of its actual training rollouts, `train_contact`).
 
 jax 0.9.2 workaround: our Actor always builds the selection-logit Dense layer, with 0 outputs for
 the pose method, and jax 0.9.2's orthogonal initializer raises ZeroDivisionError on that zero-size
@@ -236,24 +248,34 @@ def fresh_wrap(env: BraxAdapter, episode_length: int = 150, action_repeat: int =
 
 
 # ----------------------------------------------------------------------------------- evaluation
-def make_evaluator(env: FPiHEnv, policy_from_params, keys: jax.Array):
-    """params -> {'success_rate', 'break_rate'} over len(keys) deterministic episodes of the raw env.
+def _contact_rate(traj) -> float:
+    """Fraction of env-steps in contact, over the steps before each episode ended."""
+    live = 1.0 - np.asarray(traj["done_before"])
+    return float((np.asarray(traj["in_contact"]) * live).sum() / max(live.sum(), 1.0))
 
-    `policy_from_params(params)` returns a match_jax.evaluation policy; params is a jit argument, so
-    the rollout compiles once per trainer.
+
+def make_evaluator(env: FPiHEnv, policies_from_params, keys: jax.Array):
+    """params -> {'success_rate', 'break_rate', 'contact_rate', 'explore_contact_rate'} over len(keys)
+    episodes of the raw env.
+
+    `policies_from_params(params)` returns (deterministic, stochastic) match_jax.evaluation policies;
+    success, break and contact rates are the deterministic policy's, `explore_contact_rate` the
+    stochastic one's on the same episodes. params is a jit argument, so this compiles once per trainer.
     """
 
     @jax.jit
     def run(params):
-        rollout = make_rollout(env, policy_from_params(params))
-        return rollout(keys, jnp.zeros(keys.shape[0]))
+        deterministic, stochastic = policies_from_params(params)
+        return tuple(make_rollout(env, policy)(keys, jnp.zeros(keys.shape[0])) for policy in (deterministic, stochastic))
 
     def evaluate(params) -> dict:
         # Host copies: the trainers' arrays differ in sharding / weak types between calls, which
         # would recompile `run`; numpy arrays always give the same signature.
         params = jax.tree_util.tree_map(np.asarray, jax.device_get(params))
-        m = episode_metrics(jax.device_get(run(params)), env.config.policy_dt)
-        return {"success_rate": float(np.mean(m["success"])), "break_rate": float(np.mean(m["broken"]))}
+        traj, explore = jax.device_get(run(params))
+        m = episode_metrics(traj, env.config.policy_dt)
+        return {"success_rate": float(np.mean(m["success"])), "break_rate": float(np.mean(m["broken"])),
+                "contact_rate": _contact_rate(traj), "explore_contact_rate": _contact_rate(explore)}
 
     return evaluate
 
@@ -287,25 +309,29 @@ def steady_rate(intervals: list[dict]) -> tuple[float | None, int]:
 # -------------------------------------------------------------------------------------- trainers
 def run_ours(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, log) -> dict:
     from match_jax.ppo import deterministic_policy
-    from match_jax.training import Run, RunSpec
+    from match_jax.training import Run, RunSpec, shard_envs
 
     start = time.perf_counter()
     run = Run(RunSpec(ppo=ppo, env=env_config, num_seeds=1, seed=seed, preset="cpu"),
               pathlib.Path(tempfile.gettempdir()) / "brax_comparison_ours_unused")
     trainer = run.trainer
 
-    def policy_from_params(p):
-        return deterministic_policy(trainer, p[0], p[1])
+    def policies_from_params(p):
+        def stochastic(obs, pstate, key):
+            head = trainer.policy_head(p[0], p[1], obs["state"])
+            return trainer.distribution.to_action(trainer.distribution.sample(key, head)), pstate
+        return deterministic_policy(trainer, p[0], p[1]), stochastic
 
-    evaluate = make_evaluator(eval_env, policy_from_params, evaluator_keys)
+    evaluate = make_evaluator(eval_env, policies_from_params, evaluator_keys)
 
     def seed0(state):
         return jax.tree_util.tree_map(lambda x: x[0], (state.params, state.policy_stats))
 
-    state = run.initial_state()
+    state = shard_envs(run.initial_state())
     jax.block_until_ready(state)
     curve = [{"env_steps": 0, **evaluate(seed0(state))}]
-    log(f"ours  step {0:>9,}: eval success {curve[-1]['success_rate']:.3f} break {curve[-1]['break_rate']:.3f}")
+    log(f"ours  step {0:>9,}: eval success {curve[-1]['success_rate']:.3f} break {curve[-1]['break_rate']:.3f} "
+        f"explore contact {curve[-1]['explore_contact_rate']:.3f}")
     chunks = ppo.num_iterations // ppo.iterations_per_chunk
     intervals, train_success = [], []
     for _ in range(chunks):
@@ -316,14 +342,16 @@ def run_ours(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, l
         metrics = jax.device_get(metrics)
         env_steps = int(np.asarray(state.env_steps)[0])
         intervals.append({"env_steps": ppo.steps_per_iteration * ppo.iterations_per_chunk, "seconds": seconds,
-                          "compile_s": compile_s, "at_env_steps": env_steps})
+                          "compile_s": compile_s, "at_env_steps": env_steps,
+                          "train_contact": float(np.mean(metrics["contact_fraction"]))})
         for it in range(ppo.iterations_per_chunk):
             rate = float(metrics["success_rate"][it, 0])
             train_success.append({"env_steps": int(metrics["env_steps"][it, 0]),
                                   "success_rate": None if math.isnan(rate) else rate})
         curve.append({"env_steps": env_steps, **evaluate(seed0(state))})
         log(f"ours  step {env_steps:>9,}: eval success {curve[-1]['success_rate']:.3f} "
-            f"break {curve[-1]['break_rate']:.3f}  ({seconds:.1f} s for the interval)")
+            f"break {curve[-1]['break_rate']:.3f} explore contact {curve[-1]['explore_contact_rate']:.3f} "
+            f"({seconds:.1f} s for the interval, train contact {intervals[-1]['train_contact']:.3f})")
     rate, clean = steady_rate(intervals)
     return {
         "success_curve": curve,
@@ -360,13 +388,15 @@ def run_brax(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, l
         # Brax calls this at step 0 and right after every training epoch, before progress_fn.
         epoch_end = CompileClock.seconds
         if "fn" not in evaluator:
-            def policy_from_params(p):
-                inference = make_policy(p, deterministic=True)
-                return lambda obs, pstate, key: (inference(obs, key)[0], pstate)
-            evaluator["fn"] = make_evaluator(eval_env, policy_from_params, evaluator_keys)
+            def policies_from_params(p):
+                def policy(deterministic):
+                    inference = make_policy(p, deterministic=deterministic)
+                    return lambda obs, pstate, key: (inference(obs, key)[0], pstate)
+                return policy(True), policy(False)
+            evaluator["fn"] = make_evaluator(eval_env, policies_from_params, evaluator_keys)
         curve.append({"env_steps": int(current_step), **evaluator["fn"](params)})
         log(f"brax  step {int(current_step):>9,}: eval success {curve[-1]['success_rate']:.3f} "
-            f"break {curve[-1]['break_rate']:.3f}")
+            f"break {curve[-1]['break_rate']:.3f} explore contact {curve[-1]['explore_contact_rate']:.3f}")
         compile_marks.append((epoch_end, CompileClock.seconds))
 
     def progress_fn(current_step, metrics):
@@ -484,7 +514,7 @@ def main(argv=None) -> dict:
         "brax_autoreset": args.brax_autoreset, "epochs": ppo.epochs, "minibatches": ppo.minibatches,
         "learning_rate": ppo.learning_rate, "gamma": ppo.gamma, "gae_lambda": ppo.gae_lambda,
         "clip_eps": ppo.clip_eps, "reward_scale": ppo.reward_scale,
-        "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(), "python": platform.python_version(),
+        "device": str(jax.devices()[0]), "host_devices": len(jax.devices()), "cpu_count": os.cpu_count(), "python": platform.python_version(),
         "versions": _versions(),
         "zero_size_orthogonal_patched": ZERO_SIZE_ORTHOGONAL_PATCHED,
         "steps_per_s_method": "training only: per evaluation interval, ours = host time of one jitted train_chunk "

@@ -16,6 +16,14 @@ Measured in one run, so the ratios are meaningful on a noisy machine:
 measures training throughput instead: env steps/s of whole PPO iterations (rollout + GAE + update
 epochs, one jitted chunk) at each preset's sizes, after compilation, and in the same run the env
 alone (jit(vmap(step)) with auto-reset) at the same batch, so the ratio shows what learning costs.
+
+The env batch is split over JAX's CPU devices as train.py splits it (`import match_jax` makes one
+per core; `training.batch_mesh`), in both modes, for the env and for bare mjx.step alike.
+
+    python benchmarks/throughput.py --training cpu --method match --host-devices 1,2
+
+runs the measurement once per CPU device count (each in a fresh process with JAX_NUM_CPU_DEVICES
+set, since JAX fixes it at start-up) and writes all rows, tagged `host_devices`, to one JSON.
 """
 
 from __future__ import annotations
@@ -24,6 +32,9 @@ import argparse
 import json
 import os
 import pathlib
+import subprocess
+import sys
+import tempfile
 import time
 
 import match_jax  # noqa: F401  (fast XLA CPU flag)
@@ -36,6 +47,7 @@ from mujoco import rollout
 
 from match_jax.envs import FPiHConfig, FPiHEnv
 from match_jax.sim import mjx
+from match_jax.training import batch_mesh, shard_batch
 
 
 def _timed(fn, state, repeats):
@@ -56,16 +68,17 @@ def benchmark(batch_sizes, repeats: int, control: str = "hybrid") -> dict:
     action = env.neutral_action()
     m = env.mjx_model
     results = {"control": control, "device": str(jax.devices()[0]), "physics_steps_per_policy_step": substeps,
-               "cpu_count": os.cpu_count(), "rows": []}
+               "cpu_count": os.cpu_count(), "host_devices": len(jax.devices()), "rows": []}
 
     for batch in batch_sizes:
-        states = reset(jax.random.split(jax.random.PRNGKey(0), batch))
-        actions = jnp.tile(action, (batch, 1))
+        mesh = batch_mesh(batch)
+        states = reset(shard_batch(jax.random.split(jax.random.PRNGKey(0), batch), 0, mesh))
+        actions = shard_batch(jnp.tile(action, (batch, 1)), 0, mesh)
         env_fn = jax.jit(lambda s: step(s, actions))
         env_dt = _timed(env_fn, states, repeats)
 
         # bare mjx.step: same model, same start states, gravity-compensation torques held
-        data = jax.vmap(lambda d: d.replace(ctrl=mjx.fwd_velocity(m, mjx.fwd_position(m, d)).qfrc_bias))(
+        data = jax.jit(jax.vmap(lambda d: d.replace(ctrl=mjx.fwd_velocity(m, mjx.fwd_position(m, d)).qfrc_bias)))(
             states.pipeline_state)
         bare_fn = jax.jit(jax.vmap(lambda d: jax.lax.fori_loop(0, substeps, lambda i, d: mjx.step(m, d), d)))
         bare_dt = _timed(bare_fn, data, repeats)
@@ -88,6 +101,7 @@ def benchmark(batch_sizes, repeats: int, control: str = "hybrid") -> dict:
 
         row = {
             "batch": batch,
+            "devices_used": 1 if mesh is None else mesh.size,
             "env_policy_steps_per_s": batch / env_dt,
             "env_physics_steps_per_s": batch * substeps / env_dt,
             "bare_mjx_physics_steps_per_s": batch * substeps / bare_dt,
@@ -107,13 +121,14 @@ def benchmark_training(presets, method: str, chunks: int) -> dict:
     """Training env steps/s (one seed) at each preset, and the bare env at the same batch."""
     from match_jax.envs import AutoResetEnv
     from match_jax.presets import get_preset
-    from match_jax.training import Run, RunSpec
+    from match_jax.training import Run, RunSpec, shard_envs
 
-    results = {"method": method, "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(), "rows": []}
+    results = {"method": method, "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(),
+               "host_devices": len(jax.devices()), "rows": []}
     for name in presets:
         ppo = get_preset(name, method=method, iterations_per_chunk=1)
         run = Run(RunSpec(ppo=ppo, num_seeds=1), "/tmp/unused-benchmark-run")
-        state = run.initial_state()
+        state = shard_envs(run.initial_state())
         start = time.perf_counter()
         state, _ = run.chunk(state)
         jax.block_until_ready(state)
@@ -125,8 +140,9 @@ def benchmark_training(presets, method: str, chunks: int) -> dict:
         train_rate = chunks * ppo.steps_per_iteration / (time.perf_counter() - start)
 
         benv = AutoResetEnv(run.env)
-        states = jax.jit(benv.reset)(jax.random.split(jax.random.PRNGKey(0), ppo.num_envs))
-        actions = jnp.tile(run.env.neutral_action(), (ppo.num_envs, 1))
+        mesh = batch_mesh(ppo.num_envs)
+        states = jax.jit(benv.reset)(shard_batch(jax.random.split(jax.random.PRNGKey(0), ppo.num_envs), 0, mesh))
+        actions = shard_batch(jnp.tile(run.env.neutral_action(), (ppo.num_envs, 1)), 0, mesh)
         env_fn = jax.jit(lambda s: jax.lax.scan(lambda c, _: (benv.step(c, actions), None), s, None, length=10)[0])
         env_rate = 10 * ppo.num_envs / _timed(env_fn, states, 3)
         row = {"preset": name, "num_envs": ppo.num_envs, "steps_per_iteration": ppo.steps_per_iteration,
@@ -148,7 +164,12 @@ def main() -> None:
     parser.add_argument("--training", default=None, help="comma-separated presets: measure training throughput")
     parser.add_argument("--method", default="match", choices=["pose", "vices", "hybrid", "match"])
     parser.add_argument("--chunks", type=int, default=2, help="timed PPO iterations per preset (--training)")
+    parser.add_argument("--host-devices", default=None,
+                        help="comma-separated CPU device counts: rerun the measurement in a fresh process per count")
     args = parser.parse_args()
+    if args.host_devices:
+        compare_host_devices(parser, args)
+        return
     if args.training:
         from match_jax.presets import PRESETS
         presets = [p for p in args.training.split(",") if p]
@@ -172,6 +193,37 @@ def main() -> None:
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(results, indent=2))
+        print(f"wrote {args.json}")
+
+
+def compare_host_devices(parser, args) -> None:
+    """Rerun this script once per CPU device count (JAX_NUM_CPU_DEVICES) and merge the rows."""
+    try:
+        counts = [int(c) for c in args.host_devices.split(",") if c]
+    except ValueError:
+        counts = []
+    if not counts or any(c < 1 for c in counts):
+        parser.error(f"--host-devices must be comma-separated integers >= 1, got {args.host_devices!r}")
+    argv = [a for a in sys.argv[1:]]
+    i = argv.index("--host-devices") if "--host-devices" in argv else None
+    argv = argv[:i] + argv[i + 2:] if i is not None else [a for a in argv if not a.startswith("--host-devices=")]
+    if "--json" in argv:
+        j = argv.index("--json")
+        argv = argv[:j] + argv[j + 2:]
+    argv = [a for a in argv if not a.startswith("--json=")]
+    merged = None
+    with tempfile.TemporaryDirectory() as tmp:
+        for count in counts:
+            out = pathlib.Path(tmp) / f"{count}.json"
+            env = dict(os.environ, JAX_NUM_CPU_DEVICES=str(count))
+            print(f"--- {count} CPU device(s)", flush=True)
+            subprocess.run([sys.executable, __file__, *argv, "--json", str(out)], env=env, check=True)
+            part = json.loads(out.read_text())
+            rows = [{"host_devices": part["host_devices"], **row} for row in part["rows"]]
+            merged = {**part, "host_devices": counts, "rows": (merged["rows"] if merged else []) + rows}
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(merged, indent=2))
         print(f"wrote {args.json}")
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from match_jax import analysis, evaluation
 from match_jax.envs import FPiHEnv
 from match_jax.ppo import deterministic_action
-from match_jax.training import RunError, load_policies, load_spec
+from match_jax.training import RunError, batch_mesh, load_policies, load_spec, shard_batch
 
 COLUMNS = ("success_rate", "break_rate", "mean_time_to_success_s", "mean_force_n", "force_selected_contact",
            "force_selected_free")
@@ -87,6 +87,8 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     is_gauss = jnp.asarray([kind == "gaussian" for kind in types])[None, :, None, None]
     z = jnp.where(is_gauss, z_gauss, z_uniform)
     offsets = jnp.asarray(levels)[None, :, None, None] / 1000.0 * z  # (S, L, E, 3), m
+    mesh = batch_mesh(episodes)  # episodes split over the CPU devices (one per core), if they divide evenly
+    keys, offsets = shard_batch(keys, 1, mesh), shard_batch(offsets, 2, mesh)
     traj = jax.device_get(jax.jit(jax.vmap(one_seed))(keys, stacked, offsets))  # (S, L, T, E, ...)
 
     results = []

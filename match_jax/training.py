@@ -96,25 +96,41 @@ def load_spec(run_dir: str | pathlib.Path) -> RunSpec:
         raise RunError(f"{path} is not a valid run config: {err}") from None
 
 
-def shard_envs(state: TrainState) -> TrainState:
-    """Place the env axis (axis 1 of env_state leaves) across all local devices; the rest is replicated.
+def batch_mesh(batch: int) -> jax.sharding.Mesh | None:
+    """A 1-D mesh ('envs') over the most local devices that divide `batch` evenly; None if that is one.
 
-    A no-op on one device. The jitted chunk then runs SPMD over the devices (jax.sharding)."""
+    On a CPU-only machine `import match_jax` gives JAX one CPU device per core (`match_jax._xla`)."""
     devices = jax.devices()
-    num_envs = state.episode_success.shape[1]
-    if len(devices) == 1 or num_envs % len(devices):
+    count = max(n for n in range(1, len(devices) + 1) if batch % n == 0)
+    return None if count == 1 else jax.sharding.Mesh(np.array(devices[:count]), ("envs",))
+
+
+def shard_batch(x: jax.Array, axis: int, mesh: jax.sharding.Mesh | None) -> jax.Array:
+    """`x` split along `axis` over `mesh` (as given by `batch_mesh`); unchanged if mesh is None."""
+    if mesh is None:
+        return x
+    spec = jax.sharding.PartitionSpec(*([None] * axis), "envs")
+    return jax.device_put(x, jax.sharding.NamedSharding(mesh, spec))
+
+
+def shard_envs(state: TrainState) -> TrainState:
+    """Place the env axis (axis 1 of env_state leaves) across local devices; the rest is replicated.
+
+    Uses `batch_mesh(num_envs)`; a no-op on one device. The jitted chunk then runs SPMD over the
+    devices (jax.sharding)."""
+    mesh = batch_mesh(state.episode_success.shape[1])
+    if mesh is None:
         return state
-    mesh = jax.sharding.Mesh(np.array(devices), ("envs",))
-    P = jax.sharding.PartitionSpec
-    by_env = jax.sharding.NamedSharding(mesh, P(None, "envs"))
-    replicated = jax.sharding.NamedSharding(mesh, P())
+    replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
 
-    def place(x, sharding):
-        return jax.device_put(x, sharding if x.ndim >= 2 else replicated)
+    def place(x):
+        # Empty leaves (MJX's unused act/tendon/sensor arrays) stay replicated: that is how the jitted
+        # chunk returns them, so the next call finds the same input shardings and does not recompile.
+        return shard_batch(x, 1, mesh) if x.ndim >= 2 and x.size else jax.device_put(x, replicated)
 
-    env_state = jax.tree_util.tree_map(lambda x: place(x, by_env), state.env_state)
+    env_state = jax.tree_util.tree_map(place, state.env_state)
     rest = jax.tree_util.tree_map(lambda x: jax.device_put(x, replicated), state._replace(env_state=None))
-    return rest._replace(env_state=env_state, episode_success=place(state.episode_success, by_env))
+    return rest._replace(env_state=env_state, episode_success=place(state.episode_success))
 
 
 class Run:
