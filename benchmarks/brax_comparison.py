@@ -14,6 +14,12 @@ all of it XLA compiles):
     /work/brax_venv/bin/python benchmarks/brax_comparison.py --num-envs 8 --total-steps 3600 \
         --eval-episodes 8 --json /tmp/brax_comparison_tiny.json
 
+Speed at equal contact load (both policies kept at their initialisation, which touch the block on
+~1 % of env-steps; the trainers still do all their work, the updates are just ~1e-12 in size):
+
+    /work/brax_venv/bin/python benchmarks/brax_comparison.py --learning-rate 1e-12 --total-steps 153600 \
+        --evals 4 --eval-episodes 32 --json results/brax_comparison_frozen.json
+
 What runs, in ONE process, on `FPiHEnv(FPiHConfig(control="pose"))` (150-step episodes):
 
 - ours: `match_jax.training.Run` on `get_preset("cpu", method="pose", num_envs=N, total_steps=S,
@@ -480,6 +486,9 @@ def main(argv=None) -> dict:
                         help="fresh: new episode on every reset (like ours); first: Brax's stock AutoResetWrapper")
     parser.add_argument("--brax-policy-layers", type=_layers, default=[128, 128])
     parser.add_argument("--brax-value-layers", type=_layers, default=[256, 256, 256])
+    parser.add_argument("--learning-rate", type=float, default=None,
+                        help="both trainers' learning rate (default: the cpu preset's); e.g. 1e-12 keeps both "
+                             "policies at their initialisation, for a speed comparison at equal contact load")
     parser.add_argument("--trainers", default="brax,ours", help="which to run, in this order (default brax,ours)")
     parser.add_argument("--json", type=pathlib.Path, default=None, help="write the results here")
     args = parser.parse_args(argv)
@@ -497,8 +506,10 @@ def main(argv=None) -> dict:
     evals = min(max(args.evals, 3), iterations)
     per_eval = -(-iterations // evals)
     iterations = per_eval * -(-iterations // per_eval)
+    if args.learning_rate is not None and not (args.learning_rate > 0 and math.isfinite(args.learning_rate)):
+        parser.error(f"--learning-rate must be a finite number > 0, got {args.learning_rate}")
     ppo = get_preset("cpu", method="pose", num_envs=args.num_envs, total_steps=iterations * steps_per_iteration,
-                     iterations_per_chunk=per_eval)
+                     iterations_per_chunk=per_eval, learning_rate=args.learning_rate or base.learning_rate)
     env_config = FPiHConfig(control="pose")
     eval_env = FPiHEnv(env_config)
     eval_keys = jax.random.split(jax.random.PRNGKey(10_000 + args.seed), args.eval_episodes)

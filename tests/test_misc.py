@@ -2,7 +2,7 @@
 
 import pytest
 
-from match_jax._xla import CPU_FLAG_VALUE, flag_supported, merged_xla_flags
+from match_jax._xla import CPU_FLAG_VALUE, flag_supported, host_device_count, merged_xla_flags
 
 
 def test_xla_flags_are_merged_not_overridden():
@@ -10,6 +10,14 @@ def test_xla_flags_are_merged_not_overridden():
     assert merged_xla_flags("--xla_dump_to=/tmp/x") == f"--xla_dump_to=/tmp/x {CPU_FLAG_VALUE}"
     mine = "--xla_cpu_use_fusion_emitters=true --foo=1"
     assert merged_xla_flags(mine) == mine  # the user's own value wins
+
+
+def test_host_device_count_leaves_a_user_choice_alone():
+    assert host_device_count({}, 2) == 2
+    assert host_device_count({"XLA_FLAGS": "--xla_dump_to=/tmp/x"}, 16) == 16
+    assert host_device_count({"JAX_NUM_CPU_DEVICES": "1"}, 16) is None
+    assert host_device_count({"XLA_FLAGS": "--xla_force_host_platform_device_count=4"}, 16) is None
+    assert host_device_count({}, 0) == 1
 
 
 def test_flag_only_for_jaxlib_that_knows_it():

@@ -121,22 +121,41 @@ def test_corrupted_checkpoint_is_a_clear_error(tmp_path, capsys):
         checkpoints.restore(tmp_path / "none", tree)
 
 
-def test_envs_shard_over_two_host_devices(tmp_path):
-    """In a fresh process with 2 CPU devices, the env axis is split across them and training runs."""
+def test_envs_shard_over_host_devices(tmp_path):
+    """In a fresh process with 3 CPU devices, 4 envs split over 2 of them (the most that divide 4),
+    training runs, and the second chunk reuses the first one's compilation (same input shardings)."""
     code = (
         "import match_jax, jax, numpy as np\n"
         "from match_jax.presets import get_preset\n"
-        "from match_jax.training import RunSpec, Run, shard_envs\n"
-        "assert len(jax.devices()) == 2\n"
+        "from match_jax.training import RunSpec, Run, batch_mesh, shard_envs\n"
+        "assert len(jax.devices()) == 3\n"
+        "assert batch_mesh(4).size == 2 and batch_mesh(3).size == 3 and batch_mesh(5) is None\n"
         f"run = Run(RunSpec(ppo=get_preset('tiny', method='match'), num_seeds=2), {str(tmp_path)!r})\n"
         "state = shard_envs(run.initial_state())\n"
         "leaf = state.env_state.obs['state']\n"
         "assert len(leaf.sharding.device_set) == 2 and leaf.sharding.spec[1] == 'envs', leaf.sharding\n"
         "state, m = run.chunk(state)\n"
+        "state, m = run.chunk(state)\n"
+        "assert run._chunk._cache_size() == 1, run._chunk._cache_size()\n"
         "assert np.all(np.isfinite(np.asarray(m['loss'])))\n"
         "print('ok', len(state.env_state.obs['state'].sharding.device_set))\n"
     )
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", PYTHONPATH=str(REPO))
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=3", PYTHONPATH=str(REPO))
+    env.pop("JAX_NUM_CPU_DEVICES", None)
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=900)
     assert out.returncode == 0, out.stderr[-3000:]
-    assert "ok" in out.stdout
+    assert "ok 2" in out.stdout
+
+
+@pytest.mark.parametrize("setting, expected", [(None, "cores"), ("1", 1)])
+def test_import_gives_one_cpu_device_per_core_unless_set(setting, expected):
+    """`import match_jax` makes one JAX CPU device per usable core; JAX_NUM_CPU_DEVICES wins."""
+    code = ("import match_jax, jax\nfrom match_jax._xla import usable_cores\n"
+            "print(len(jax.devices()), usable_cores())\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("JAX_NUM_CPU_DEVICES", "XLA_FLAGS")}
+    if setting is not None:
+        env["JAX_NUM_CPU_DEVICES"] = setting
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    devices, cores = (int(v) for v in out.stdout.split()[-2:])
+    assert devices == (cores if expected == "cores" else expected)
