@@ -217,13 +217,30 @@ def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv
     return FPiHEnv(env_config)
 
 
-def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
-    """Build the pure, jit-able init and train_chunk functions of one configuration."""
+def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None = None) -> Trainer:
+    """Build the pure, jit-able init and train_chunk functions of one configuration.
+
+    mesh: the 1-D device mesh ('envs') the env batch is split over (`training.batch_mesh`, which
+    `training.Run` passes). With one seed the rollout's env step then runs under `shard_map`, every
+    device stepping its own envs with no cross-device work (its own auto-reset `lax.cond`, its own MJX
+    solver loops), as Brax's pmap does; measured on 2 CPU devices that stepped a contact-heavy batch
+    1.2x faster than leaving the partitioning to XLA. Several seeds step as one flat seed-major batch,
+    whose device blocks would cut across seeds, so they (and mesh=None) use a plain step and XLA's
+    partitioning.
+    """
     dist = make_distribution(config.method, config.selection_in_ratio)
     space = dist.space
     actor = Actor(dist.num_continuous, dist.num_selections, config.network, initial_mean_bias(config, env))
     critic = Critic(config.network)
     benv = AutoResetEnv(env)
+    sharded_step = None
+    if mesh is not None:
+        if mesh.axis_names != ("envs",) or (config.num_envs % mesh.size):
+            raise ValueError(f"mesh must be 1-D over 'envs' with num_envs ({config.num_envs}) a multiple of its "
+                             f"size, got axes {mesh.axis_names} of size {mesh.size}")
+        by_env = jax.sharding.PartitionSpec("envs")
+        sharded_step = jax.shard_map(benv.step, mesh=mesh, in_specs=(by_env, by_env), out_specs=by_env,
+                                     check_vma=False)
     episode_steps = float(env.config.episode_steps)
     obs_sizes = env.observation_size
     policy_size = obs_sizes["state"][0]
@@ -278,6 +295,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
         num_seeds = keys.shape[0]
         v_normalize = jax.vmap(normalize)
         v_actor = jax.vmap(actor.apply)
+        env_step = sharded_step if sharded_step is not None and num_seeds == 1 else benv.step
 
         def step(carry, step_keys):
             env_state, ep_success, p_acc, c_acc, stats = carry
@@ -290,7 +308,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv) -> Trainer:
             log_prob = dist.log_prob(sample, head)
             label = seeds_first(env_state.info["contact_axes"], num_seeds)
             steps_before = env_state.info["steps"]
-            next_state = benv.step(env_state, flat(dist.to_action(sample)))
+            next_state = env_step(env_state, flat(dist.to_action(sample)))
             final_raw = critic_obs_raw(next_state.info["final_obs"]["privileged_state"], steps_before + 1)
             done = seeds_first(next_state.done, num_seeds)
             success = seeds_first(next_state.info["success"], num_seeds)

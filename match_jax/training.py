@@ -140,7 +140,7 @@ class Run:
         self.spec = spec
         self.dir = pathlib.Path(run_dir)
         self.env = make_env(spec.ppo, spec.env)
-        self.trainer: Trainer = make_trainer(spec.ppo, self.env)
+        self.trainer: Trainer = make_trainer(spec.ppo, self.env, batch_mesh(spec.ppo.num_envs))
         self._init = jax.jit(self.trainer.init)
         self._chunk = jax.jit(self.trainer.train_chunk, donate_argnums=0)
 

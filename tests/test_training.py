@@ -123,21 +123,23 @@ def test_corrupted_checkpoint_is_a_clear_error(tmp_path, capsys):
 
 def test_envs_shard_over_host_devices(tmp_path):
     """In a fresh process with 3 CPU devices, 4 envs split over 2 of them (the most that divide 4),
-    training runs, and the second chunk reuses the first one's compilation (same input shardings)."""
+    training runs (one seed: the env step under shard_map; two seeds: XLA's partitioning), and the
+    second chunk reuses the first one's compilation (same input shardings)."""
     code = (
         "import match_jax, jax, numpy as np\n"
         "from match_jax.presets import get_preset\n"
         "from match_jax.training import RunSpec, Run, batch_mesh, shard_envs\n"
         "assert len(jax.devices()) == 3\n"
         "assert batch_mesh(4).size == 2 and batch_mesh(3).size == 3 and batch_mesh(5) is None\n"
-        f"run = Run(RunSpec(ppo=get_preset('tiny', method='match'), num_seeds=2), {str(tmp_path)!r})\n"
-        "state = shard_envs(run.initial_state())\n"
-        "leaf = state.env_state.obs['state']\n"
-        "assert len(leaf.sharding.device_set) == 2 and leaf.sharding.spec[1] == 'envs', leaf.sharding\n"
-        "state, m = run.chunk(state)\n"
-        "state, m = run.chunk(state)\n"
-        "assert run._chunk._cache_size() == 1, run._chunk._cache_size()\n"
-        "assert np.all(np.isfinite(np.asarray(m['loss'])))\n"
+        "for seeds in (1, 2):\n"
+        f"    run = Run(RunSpec(ppo=get_preset('tiny', method='match'), num_seeds=seeds), {str(tmp_path)!r})\n"
+        "    state = shard_envs(run.initial_state())\n"
+        "    leaf = state.env_state.obs['state']\n"
+        "    assert len(leaf.sharding.device_set) == 2 and leaf.sharding.spec[1] == 'envs', leaf.sharding\n"
+        "    state, m = run.chunk(state)\n"
+        "    state, m = run.chunk(state)\n"
+        "    assert run._chunk._cache_size() == 1, (seeds, run._chunk._cache_size())\n"
+        "    assert np.all(np.isfinite(np.asarray(m['loss'])))\n"
         "print('ok', len(state.env_state.obs['state'].sharding.device_set))\n"
     )
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=3", PYTHONPATH=str(REPO))
