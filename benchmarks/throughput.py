@@ -178,10 +178,7 @@ def main() -> None:
             parser.error(f"--training takes presets from {sorted(PRESETS)} and --chunks >= 1, got {args.training!r}, "
                          f"{args.chunks}")
         results = benchmark_training(presets, args.method, args.chunks)
-        if args.json:
-            args.json.parent.mkdir(parents=True, exist_ok=True)
-            args.json.write_text(json.dumps(results, indent=2))
-            print(f"wrote {args.json}")
+        _write_json(args.json, results)
         return
     try:
         sizes = [int(b) for b in args.batch_sizes.split(",")]
@@ -190,10 +187,7 @@ def main() -> None:
     if any(b < 1 for b in sizes) or args.repeats < 1:
         parser.error(f"batch sizes and --repeats must be >= 1, got {sizes} and {args.repeats}")
     results = benchmark(sizes, args.repeats, args.control)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(results, indent=2))
-        print(f"wrote {args.json}")
+    _write_json(args.json, results)
 
 
 def compare_host_devices(parser, args) -> None:
@@ -204,14 +198,8 @@ def compare_host_devices(parser, args) -> None:
         counts = []
     if not counts or any(c < 1 for c in counts):
         parser.error(f"--host-devices must be comma-separated integers >= 1, got {args.host_devices!r}")
-    argv = [a for a in sys.argv[1:]]
-    i = argv.index("--host-devices") if "--host-devices" in argv else None
-    argv = argv[:i] + argv[i + 2:] if i is not None else [a for a in argv if not a.startswith("--host-devices=")]
-    if "--json" in argv:
-        j = argv.index("--json")
-        argv = argv[:j] + argv[j + 2:]
-    argv = [a for a in argv if not a.startswith("--json=")]
-    merged = None
+    argv = _without_options(sys.argv[1:], ("--host-devices", "--json"))
+    rows, part = [], {}
     with tempfile.TemporaryDirectory() as tmp:
         for count in counts:
             out = pathlib.Path(tmp) / f"{count}.json"
@@ -219,13 +207,28 @@ def compare_host_devices(parser, args) -> None:
             print(f"--- {count} CPU device(s)", flush=True)
             subprocess.run([sys.executable, __file__, *argv, "--json", str(out)], env=env, check=True)
             part = json.loads(out.read_text())
-            rows = [{"host_devices": part["host_devices"], **row} for row in part["rows"]]
-            merged = {**part, "host_devices": counts, "rows": (merged["rows"] if merged else []) + rows}
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(merged, indent=2))
-        print(f"wrote {args.json}")
+            rows += [{"host_devices": part["host_devices"], **row} for row in part["rows"]]
+    _write_json(args.json, {**part, "host_devices": counts, "rows": rows})
 
+
+def _without_options(argv: list[str], names) -> list[str]:
+    """`argv` without the options `names` and their values (`--name value` or `--name=value`)."""
+    kept, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg in names:
+            skip = True
+        elif not arg.startswith(tuple(f"{name}=" for name in names)):
+            kept.append(arg)
+    return kept
+
+
+def _write_json(path: pathlib.Path | None, results: dict) -> None:
+    if path:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(results, indent=2))
+        print(f"wrote {path}")
 
 if __name__ == "__main__":
     main()
