@@ -117,17 +117,17 @@ def benchmark(batch_sizes, repeats: int, control: str = "hybrid") -> dict:
     return results
 
 
-def benchmark_training(presets, method: str, chunks: int) -> dict:
-    """Training env steps/s (one seed) at each preset, and the bare env at the same batch."""
+def benchmark_training(presets, method: str, chunks: int, seeds: int = 1) -> dict:
+    """Training env steps/s (all `seeds` together) at each preset, and the bare env at the same total batch."""
     from match_jax.envs import AutoResetEnv
     from match_jax.presets import get_preset
     from match_jax.training import Run, RunSpec, shard_envs
 
     results = {"method": method, "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(),
-               "host_devices": len(jax.devices()), "rows": []}
+               "host_devices": len(jax.devices()), "seeds": seeds, "rows": []}
     for name in presets:
         ppo = get_preset(name, method=method, iterations_per_chunk=1)
-        run = Run(RunSpec(ppo=ppo, num_seeds=1), "/tmp/unused-benchmark-run")
+        run = Run(RunSpec(ppo=ppo, num_seeds=seeds), "/tmp/unused-benchmark-run")
         state = shard_envs(run.initial_state())
         start = time.perf_counter()
         state, _ = run.chunk(state)
@@ -137,19 +137,20 @@ def benchmark_training(presets, method: str, chunks: int) -> dict:
         for _ in range(chunks):
             state, _ = run.chunk(state)
         jax.block_until_ready(state)
-        train_rate = chunks * ppo.steps_per_iteration / (time.perf_counter() - start)
+        train_rate = chunks * seeds * ppo.steps_per_iteration / (time.perf_counter() - start)
 
         benv = AutoResetEnv(run.env)
-        mesh = batch_mesh(ppo.num_envs)
-        states = jax.jit(benv.reset)(shard_batch(jax.random.split(jax.random.PRNGKey(0), ppo.num_envs), 0, mesh))
-        actions = shard_batch(jnp.tile(run.env.neutral_action(), (ppo.num_envs, 1)), 0, mesh)
+        batch = seeds * ppo.num_envs
+        mesh = batch_mesh(batch)
+        states = jax.jit(benv.reset)(shard_batch(jax.random.split(jax.random.PRNGKey(0), batch), 0, mesh))
+        actions = shard_batch(jnp.tile(run.env.neutral_action(), (batch, 1)), 0, mesh)
         env_fn = jax.jit(lambda s: jax.lax.scan(lambda c, _: (benv.step(c, actions), None), s, None, length=10)[0])
-        env_rate = 10 * ppo.num_envs / _timed(env_fn, states, 3)
-        row = {"preset": name, "num_envs": ppo.num_envs, "steps_per_iteration": ppo.steps_per_iteration,
+        env_rate = 10 * batch / _timed(env_fn, states, 3)
+        row = {"preset": name, "num_envs": ppo.num_envs, "seeds": seeds, "steps_per_iteration": ppo.steps_per_iteration,
                "first_chunk_s_incl_compile": compile_s, "train_env_steps_per_s": train_rate,
                "env_only_steps_per_s": env_rate, "train_vs_env": train_rate / env_rate}
         results["rows"].append(row)
-        print(f"{name:6s} preset ({ppo.num_envs} envs, {method}): training {train_rate:8.0f} env steps/s | env alone "
+        print(f"{name:6s} preset ({seeds} x {ppo.num_envs} envs, {method}): training {train_rate:8.0f} env steps/s | env alone "
               f"{env_rate:8.0f} steps/s | ratio {row['train_vs_env']:.2f} | first chunk incl. compile {compile_s:.0f} s",
               flush=True)
     return results
@@ -164,6 +165,7 @@ def main() -> None:
     parser.add_argument("--training", default=None, help="comma-separated presets: measure training throughput")
     parser.add_argument("--method", default="match", choices=["pose", "vices", "hybrid", "match"])
     parser.add_argument("--chunks", type=int, default=2, help="timed PPO iterations per preset (--training)")
+    parser.add_argument("--seeds", type=int, default=1, help="seeds trained in one program (--training)")
     parser.add_argument("--host-devices", default=None,
                         help="comma-separated CPU device counts: rerun the measurement in a fresh process per count")
     args = parser.parse_args()
@@ -174,10 +176,10 @@ def main() -> None:
         from match_jax.presets import PRESETS
         presets = [p for p in args.training.split(",") if p]
         unknown = [p for p in presets if p not in PRESETS]
-        if unknown or args.chunks < 1:
-            parser.error(f"--training takes presets from {sorted(PRESETS)} and --chunks >= 1, got {args.training!r}, "
-                         f"{args.chunks}")
-        results = benchmark_training(presets, args.method, args.chunks)
+        if unknown or args.chunks < 1 or args.seeds < 1:
+            parser.error(f"--training takes presets from {sorted(PRESETS)}, --chunks >= 1 and --seeds >= 1, got "
+                         f"{args.training!r}, {args.chunks}, {args.seeds}")
+        results = benchmark_training(presets, args.method, args.chunks, args.seeds)
         _write_json(args.json, results)
         return
     try:

@@ -221,26 +221,33 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
     """Build the pure, jit-able init and train_chunk functions of one configuration.
 
     mesh: the 1-D device mesh ('envs') the env batch is split over (`training.batch_mesh`, which
-    `training.Run` passes). With one seed the rollout's env step then runs under `shard_map`, every
-    device stepping its own envs with no cross-device work (its own auto-reset `lax.cond`, its own MJX
-    solver loops), as Brax's pmap does; measured on 2 CPU devices that stepped a contact-heavy batch
-    1.2x faster than leaving the partitioning to XLA. Several seeds step as one flat seed-major batch,
-    whose device blocks would cut across seeds, so they (and mesh=None) use a plain step and XLA's
-    partitioning.
+    `training.Run` passes). The rollout's env step then runs under `shard_map`: every device steps
+    its own block of envs (of every seed) with no cross-device work (its own auto-reset `lax.cond`,
+    its own MJX solver loops), as Brax's pmap does; measured on 2 CPU devices that stepped a
+    contact-heavy batch 1.2x faster than leaving the partitioning to XLA. mesh=None: a plain step.
     """
     dist = make_distribution(config.method, config.selection_in_ratio)
     space = dist.space
     actor = Actor(dist.num_continuous, dist.num_selections, config.network, initial_mean_bias(config, env))
     critic = Critic(config.network)
     benv = AutoResetEnv(env)
-    sharded_step = None
+
+    def step_seeds(state, action):
+        """benv.step on (seeds, envs, ...) state and action leaves, as one flat batch: a vmap over seeds
+        would turn the auto-reset's lax.cond into a select that runs the reset on every step."""
+        lead = action.shape[:2]
+        flat_state = jax.tree_util.tree_map(lambda x: x.reshape((lead[0] * lead[1],) + x.shape[2:]), state)
+        next_state = benv.step(flat_state, action.reshape((lead[0] * lead[1],) + action.shape[2:]))
+        return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), next_state)
+
+    env_step = step_seeds
     if mesh is not None:
         if mesh.axis_names != ("envs",) or (config.num_envs % mesh.size):
             raise ValueError(f"mesh must be 1-D over 'envs' with num_envs ({config.num_envs}) a multiple of its "
                              f"size, got axes {mesh.axis_names} of size {mesh.size}")
-        by_env = jax.sharding.PartitionSpec("envs")
-        sharded_step = jax.shard_map(benv.step, mesh=mesh, in_specs=(by_env, by_env), out_specs=by_env,
-                                     check_vma=False)
+        by_env = jax.sharding.PartitionSpec(None, "envs")
+        env_step = jax.shard_map(step_seeds, mesh=mesh, in_specs=(by_env, by_env), out_specs=by_env,
+                                 check_vma=False)
     episode_steps = float(env.config.episode_steps)
     obs_sizes = env.observation_size
     policy_size = obs_sizes["state"][0]
@@ -282,44 +289,31 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
         )
 
     # ------------------------------------------------------------------------------ rollout
-    # The rollout steps all seeds' envs as ONE flat batch of num_seeds * num_envs (the networks are
-    # vmapped over the seed axis): a vmap over seeds around the env would turn the auto-reset's
-    # lax.cond into a select that runs the reset on every step.
-    def seeds_first(x, num_seeds):
-        return x.reshape((num_seeds, x.shape[0] // num_seeds) + x.shape[1:])
-
-    def flat(x):
-        return x.reshape((x.shape[0] * x.shape[1],) + x.shape[2:])
-
+    # Env state, observations and transitions keep a (seeds, envs, ...) layout; the networks are vmapped
+    # over the seed axis and the env steps every seed's envs as one batch (`env_step`).
     def rollout(ts: TrainState, keys: jax.Array):
         num_seeds = keys.shape[0]
         v_normalize = jax.vmap(normalize)
         v_actor = jax.vmap(actor.apply)
-        env_step = sharded_step if sharded_step is not None and num_seeds == 1 else benv.step
 
         def step(carry, step_keys):
             env_state, ep_success, p_acc, c_acc, stats = carry
-            raw_policy = seeds_first(env_state.obs["state"], num_seeds)
-            raw_critic = seeds_first(critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"]),
-                                     num_seeds)
+            raw_policy = env_state.obs["state"]
+            raw_critic = critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"])
             policy_obs = v_normalize(raw_policy, ts.policy_stats)
             head = v_actor(ts.params["actor"], policy_obs)
             sample = jax.vmap(dist.sample)(step_keys, head)
             log_prob = dist.log_prob(sample, head)
-            label = seeds_first(env_state.info["contact_axes"], num_seeds)
-            steps_before = env_state.info["steps"]
-            next_state = env_step(env_state, flat(dist.to_action(sample)))
-            final_raw = critic_obs_raw(next_state.info["final_obs"]["privileged_state"], steps_before + 1)
-            done = seeds_first(next_state.done, num_seeds)
-            success = seeds_first(next_state.info["success"], num_seeds)
-            broken = seeds_first(next_state.info["broken"], num_seeds)
-            ep_success = jnp.maximum(ep_success, success * (1.0 - broken))
+            next_state = env_step(env_state, dist.to_action(sample))
+            final_raw = critic_obs_raw(next_state.info["final_obs"]["privileged_state"], env_state.info["steps"] + 1)
+            done, broken = next_state.done, next_state.info["broken"]
+            ep_success = jnp.maximum(ep_success, next_state.info["success"] * (1.0 - broken))
             stats = {
                 "episodes": stats["episodes"] + done.sum(-1),
                 "successes": stats["successes"] + (done * ep_success).sum(-1),
                 "breaks": stats["breaks"] + (done * broken).sum(-1),
-                "reward": stats["reward"] + seeds_first(next_state.reward, num_seeds).sum(-1),
-                "contact_steps": stats["contact_steps"] + seeds_first(next_state.info["in_contact"], num_seeds).sum(-1),
+                "reward": stats["reward"] + next_state.reward.sum(-1),
+                "contact_steps": stats["contact_steps"] + next_state.info["in_contact"].sum(-1),
             }
             ep_success = jnp.where(done > 0, 0.0, ep_success)
             p_acc = jax.vmap(running_statistics.update)(p_acc, raw_policy)
@@ -327,26 +321,23 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
             transition = Transition(
                 policy_obs=policy_obs,
                 critic_obs=v_normalize(raw_critic, ts.critic_stats),
-                final_critic_obs=v_normalize(seeds_first(final_raw, num_seeds), ts.critic_stats),
+                final_critic_obs=v_normalize(final_raw, ts.critic_stats),
                 sample=sample,
                 log_prob=log_prob,
-                reward=seeds_first(next_state.reward, num_seeds) * config.reward_scale,
+                reward=next_state.reward * config.reward_scale,
                 done=done,
-                truncation=seeds_first(next_state.info["truncation"], num_seeds),
-                contact_label=label,
+                truncation=next_state.info["truncation"],
+                contact_label=env_state.info["contact_axes"],
             )
             return (next_state, ep_success, p_acc, c_acc, stats), transition
 
         zero = jnp.zeros(num_seeds)
         stats0 = {k: zero for k in ("episodes", "successes", "breaks", "reward", "contact_steps")}
-        env_state = jax.tree_util.tree_map(flat, ts.env_state)
-        carry0 = (env_state, ts.episode_success, ts.policy_stats, ts.critic_stats, stats0)
+        carry0 = (ts.env_state, ts.episode_success, ts.policy_stats, ts.critic_stats, stats0)
         step_keys = jax.vmap(lambda k: jax.random.split(k, config.rollout_steps), out_axes=1)(keys)
         (env_state, ep_success, p_stats, c_stats, stats), traj = jax.lax.scan(step, carry0, step_keys)
-        last_critic = v_normalize(
-            seeds_first(critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"]), num_seeds),
-            ts.critic_stats)
-        env_state = jax.tree_util.tree_map(lambda x: seeds_first(x, num_seeds), env_state)
+        last_critic = v_normalize(critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"]),
+                                  ts.critic_stats)
         traj = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), traj)  # (S, T, B, ...)
         return env_state, ep_success, p_stats, c_stats, stats, traj, last_critic
 
@@ -466,8 +457,12 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
         return ts, metrics
 
     def init(keys: jax.Array) -> TrainState:
-        """The TrainState of len(keys) seeds (leading seed axis on every leaf)."""
-        return jax.vmap(init_one)(keys)
+        """The TrainState of len(keys) seeds (leading seed axis on every leaf).
+
+        A loop over seeds, not a vmap: a vmapped orthogonal initialiser is a batched LAPACK QR, whose
+        parallel batch map deadlocked XLA's CPU thread pool (jaxlib 0.10.2, cpu preset: 3 seeds hung in
+        23 of 28 tries on 1 or 2 devices, 4 seeds in 2 of 2; every thread parked, no progress)."""
+        return jax.lax.map(init_one, keys)
 
     def train_chunk(ts: TrainState):
         """`iterations_per_chunk` iterations; metrics are (iterations_per_chunk, num_seeds) arrays."""

@@ -122,21 +122,27 @@ def test_corrupted_checkpoint_is_a_clear_error(tmp_path, capsys):
 
 
 def test_envs_shard_over_host_devices(tmp_path):
-    """In a fresh process with 3 CPU devices, 4 envs split over 2 of them (the most that divide 4),
-    training runs (one seed: the env step under shard_map; two seeds: XLA's partitioning), and the
-    second chunk reuses the first one's compilation (same input shardings)."""
+    """In a fresh process with 3 CPU devices, 4 envs split over 2 of them (the most that divide 4);
+    for 1 and 2 seeds the env step runs under shard_map, the rollout matches an unsharded trainer's
+    from the same state, and the second chunk reuses the first one's compilation (same shardings)."""
     code = (
         "import match_jax, jax, numpy as np\n"
+        "from match_jax.ppo import make_trainer\n"
         "from match_jax.presets import get_preset\n"
         "from match_jax.training import RunSpec, Run, batch_mesh, shard_envs\n"
         "assert len(jax.devices()) == 3\n"
         "assert batch_mesh(4).size == 2 and batch_mesh(3).size == 3 and batch_mesh(5) is None\n"
         "for seeds in (1, 2):\n"
         f"    run = Run(RunSpec(ppo=get_preset('tiny', method='match'), num_seeds=seeds), {str(tmp_path)!r})\n"
-        "    state = shard_envs(run.initial_state())\n"
+        "    start = run.initial_state()\n"
+        "    ref_state, ref = jax.jit(make_trainer(run.spec.ppo, run.env).train_chunk)(start)\n"
+        "    state = shard_envs(start)\n"
         "    leaf = state.env_state.obs['state']\n"
         "    assert len(leaf.sharding.device_set) == 2 and leaf.sharding.spec[1] == 'envs', leaf.sharding\n"
         "    state, m = run.chunk(state)\n"
+        "    for key in ('mean_reward', 'contact_fraction', 'episodes'):\n"
+        "        np.testing.assert_allclose(m[key], ref[key], rtol=1e-4, atol=1e-6, err_msg=key)\n"
+        "    np.testing.assert_allclose(state.env_state.obs['state'], ref_state.env_state.obs['state'], atol=1e-4)\n"
         "    state, m = run.chunk(state)\n"
         "    assert run._chunk._cache_size() == 1, (seeds, run._chunk._cache_size())\n"
         "    assert np.all(np.isfinite(np.asarray(m['loss'])))\n"
@@ -147,6 +153,26 @@ def test_envs_shard_over_host_devices(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=900)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "ok 2" in out.stdout
+
+
+def test_several_seeds_initialise_without_deadlock():
+    """cpu preset, 3 seeds: the initial state must become ready. A vmap over seeds made the orthogonal
+    initialisers one batched LAPACK QR, which deadlocked XLA's CPU thread pool in most tries."""
+    code = ("import match_jax, jax\n"
+            "from match_jax.ppo import make_env, make_trainer\n"
+            "from match_jax.presets import get_preset\n"
+            "ppo = get_preset('cpu', method='match')\n"
+            "trainer = make_trainer(ppo, make_env(ppo))\n"
+            "state = jax.jit(trainer.init)(jax.random.split(jax.random.PRNGKey(0), 3))\n"
+            "jax.block_until_ready(state)\n"
+            "print('ready', state.env_state.obs['state'].shape)\n")
+    try:
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             env=dict(os.environ, PYTHONPATH=str(REPO)), timeout=240)
+    except subprocess.TimeoutExpired:
+        pytest.fail("initialising 3 seeds did not finish in 240 s (the batched-QR deadlock)")
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "ready (3, 128," in out.stdout
 
 
 @pytest.mark.parametrize("setting, expected", [(None, "cores"), ("1", 1)])
