@@ -107,7 +107,7 @@ Other differences that remain (Brax as it is used here vs ours):
 - devices: `import match_jax` gives JAX one CPU device per core (`match_jax._xla`), and both trainers
   split the envs over them: Brax runs its training epoch under `jax.pmap` over all local devices (its
   default), ours under `jax.jit` with the env axis sharded (`training.shard_envs`, as train.py does)
-  and, with one seed, the env step under `shard_map` (`ppo.make_trainer(mesh=...)`).
+  and the env step under `shard_map` (`ppo.make_trainer(mesh=...)`).
   `config.host_devices` records the count; JAX_NUM_CPU_DEVICES=1 gives the one-device comparison.
 
 Contact load. MJX's constraint solver is a while loop that, under vmap, runs until the slowest env of

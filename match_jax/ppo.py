@@ -5,7 +5,8 @@ pytree. One *iteration* = a `lax.scan` of `rollout_steps` env steps across `num_
 then `epochs` x `minibatches` clipped-surrogate updates. `Trainer.train_chunk` runs
 `iterations_per_chunk` iterations inside one jitted call and returns their metrics. Several seeds
 train in the same program: every TrainState leaf has a leading seed axis; the networks and updates
-are vmapped over it and the envs of all seeds step as one flat batch.
+are vmapped over it and the envs of all seeds step as one batch (split over the local devices under
+`shard_map` when `make_trainer` gets a mesh).
 
 Asymmetric actor-critic: the actor reads the running-normalised policy observation; the critic the
 running-normalised privileged observation plus the episode-time fraction (the time limit is part of
