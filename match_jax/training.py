@@ -296,7 +296,10 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     except KeyboardInterrupt:
         if bar is not None:
             bar.close()
-        print(f"interrupted; the latest checkpoint is kept: resume with --resume --out {run_dir}")
+        if checkpoints.latest_step(latest) is None:
+            print(f"interrupted before the first checkpoint: nothing to resume; start {run_dir} again")
+        else:
+            print(f"interrupted; the latest checkpoint is kept: resume with --resume --out {run_dir}")
         raise
     finally:
         if previous_handler is not None:

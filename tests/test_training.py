@@ -41,7 +41,7 @@ def test_each_method_trains_and_checkpoints_restore_bit_identically(method, tmp_
     assert _leaves_equal(run.restore_latest(), state)
 
 
-def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path):
+def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypatch, capsys):
     """Two chunks straight vs one chunk, 'interrupt', resume, one more: identical metrics and state."""
     spec = RunSpec(ppo=get_preset("tiny", method="match", total_steps=4 * 32), num_seeds=2)
     straight, split = tmp_path / "straight", tmp_path / "split"
@@ -81,6 +81,15 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path):
     # finishing: one more resume completes the 4-iteration budget
     done = train(None, split, resume=True, progress=False)
     assert done["finished"] and done["iterations"] == 4
+    # Ctrl-C during a chunk: the message says whether there is a checkpoint to resume from
+    def interrupted_chunk(self, state):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(Run, "chunk", interrupted_chunk)
+    capsys.readouterr()
+    for run_dir, expected in ((tmp_path / "fresh", "nothing to resume"), (straight, "resume with --resume")):
+        with pytest.raises(KeyboardInterrupt):
+            train(spec if run_dir.name == "fresh" else None, run_dir, resume=run_dir == straight, progress=False)
+        assert expected in capsys.readouterr().out
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
