@@ -232,5 +232,6 @@ def _write_json(path: pathlib.Path | None, results: dict) -> None:
         path.write_text(json.dumps(results, indent=2))
         print(f"wrote {path}")
 
+
 if __name__ == "__main__":
     main()

@@ -86,9 +86,10 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypat
         raise KeyboardInterrupt
     monkeypatch.setattr(Run, "chunk", interrupted_chunk)
     capsys.readouterr()
-    for run_dir, expected in ((tmp_path / "fresh", "nothing to resume"), (straight, "resume with --resume")):
+    for run_spec, run_dir, resume, expected in ((spec, tmp_path / "fresh", False, "nothing to resume"),
+                                                (None, straight, True, "resume with --resume")):
         with pytest.raises(KeyboardInterrupt):
-            train(spec if run_dir.name == "fresh" else None, run_dir, resume=run_dir == straight, progress=False)
+            train(run_spec, run_dir, resume=resume, progress=False)
         assert expected in capsys.readouterr().out
 
 
