@@ -291,14 +291,17 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
 
     # ------------------------------------------------------------------------------ rollout
     # Env state, observations and transitions keep a (seeds, envs, ...) layout; the networks are vmapped
-    # over the seed axis and the env steps every seed's envs as one batch (`env_step`).
+    # over the seed axis and the env steps every seed's envs as one batch (`env_step`). The scan body has
+    # no reduction over envs (episode counters are kept per env, the observation statistics are updated
+    # from the whole rollout after the scan): with the envs split over devices, a reduction there would
+    # be a cross-device all-reduce at every step, making each device wait for the other's slowest env.
     def rollout(ts: TrainState, keys: jax.Array):
-        num_seeds = keys.shape[0]
         v_normalize = jax.vmap(normalize)
         v_actor = jax.vmap(actor.apply)
 
+        @jax.named_scope("rollout_step")
         def step(carry, step_keys):
-            env_state, ep_success, p_acc, c_acc, stats = carry
+            env_state, ep_success, counts = carry
             raw_policy = env_state.obs["state"]
             raw_critic = critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"])
             policy_obs = v_normalize(raw_policy, ts.policy_stats)
@@ -309,16 +312,14 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
             final_raw = critic_obs_raw(next_state.info["final_obs"]["privileged_state"], env_state.info["steps"] + 1)
             done, broken = next_state.done, next_state.info["broken"]
             ep_success = jnp.maximum(ep_success, next_state.info["success"] * (1.0 - broken))
-            stats = {
-                "episodes": stats["episodes"] + done.sum(-1),
-                "successes": stats["successes"] + (done * ep_success).sum(-1),
-                "breaks": stats["breaks"] + (done * broken).sum(-1),
-                "reward": stats["reward"] + next_state.reward.sum(-1),
-                "contact_steps": stats["contact_steps"] + next_state.info["in_contact"].sum(-1),
+            counts = {
+                "episodes": counts["episodes"] + done,
+                "successes": counts["successes"] + done * ep_success,
+                "breaks": counts["breaks"] + done * broken,
+                "reward": counts["reward"] + next_state.reward,
+                "contact_steps": counts["contact_steps"] + next_state.info["in_contact"],
             }
             ep_success = jnp.where(done > 0, 0.0, ep_success)
-            p_acc = jax.vmap(running_statistics.update)(p_acc, raw_policy)
-            c_acc = jax.vmap(running_statistics.update)(c_acc, raw_critic)
             transition = Transition(
                 policy_obs=policy_obs,
                 critic_obs=v_normalize(raw_critic, ts.critic_stats),
@@ -330,16 +331,23 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
                 truncation=next_state.info["truncation"],
                 contact_label=env_state.info["contact_axes"],
             )
-            return (next_state, ep_success, p_acc, c_acc, stats), transition
+            return (next_state, ep_success, counts), (transition, raw_policy, raw_critic)
 
-        zero = jnp.zeros(num_seeds)
-        stats0 = {k: zero for k in ("episodes", "successes", "breaks", "reward", "contact_steps")}
-        carry0 = (ts.env_state, ts.episode_success, ts.policy_stats, ts.critic_stats, stats0)
+        counts0 = {k: jnp.zeros_like(ts.episode_success)
+                   for k in ("episodes", "successes", "breaks", "reward", "contact_steps")}
+        carry0 = (ts.env_state, ts.episode_success, counts0)
         step_keys = jax.vmap(lambda k: jax.random.split(k, config.rollout_steps), out_axes=1)(keys)
-        (env_state, ep_success, p_stats, c_stats, stats), traj = jax.lax.scan(step, carry0, step_keys)
+        (env_state, ep_success, counts), (traj, raw_policy, raw_critic) = jax.lax.scan(step, carry0, step_keys)
+        stats = {k: v.sum(-1) for k, v in counts.items()}
+
+        def to_seed_major(x):  # (T, S, ...) -> (S, T, ...)
+            return jnp.swapaxes(x, 0, 1)
+
+        p_stats = jax.vmap(running_statistics.update)(ts.policy_stats, to_seed_major(raw_policy))
+        c_stats = jax.vmap(running_statistics.update)(ts.critic_stats, to_seed_major(raw_critic))
         last_critic = v_normalize(critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"]),
                                   ts.critic_stats)
-        traj = jax.tree_util.tree_map(lambda x: jnp.swapaxes(x, 0, 1), traj)  # (S, T, B, ...)
+        traj = jax.tree_util.tree_map(to_seed_major, traj)  # (S, T, B, ...)
         return env_state, ep_success, p_stats, c_stats, stats, traj, last_critic
 
     # ---------------------------------------------------------------------------------- GAE

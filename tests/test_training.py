@@ -134,9 +134,14 @@ def test_corrupted_checkpoint_is_a_clear_error(tmp_path, capsys):
 def test_envs_shard_over_host_devices(tmp_path):
     """In a fresh process with 3 CPU devices, 4 envs split over 2 of them (the most that divide 4);
     for 1 and 2 seeds the env step runs under shard_map, the rollout matches an unsharded trainer's
-    from the same state, and the second chunk reuses the first one's compilation (same shardings)."""
+    from the same state, and the second chunk reuses the first one's compilation (same shardings).
+    The rollout's step has no cross-device collective (each would make the devices wait for each
+    other at every env step); the compiled chunk comes back from the persistent cache for the check."""
     code = (
-        "import match_jax, jax, numpy as np\n"
+        "import re, match_jax, jax, numpy as np\n"
+        f"jax.config.update('jax_compilation_cache_dir', {str(tmp_path / 'jit_cache')!r})\n"
+        "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)\n"
+        "COLLECTIVE = r' (all-reduce|all-gather|all-to-all|collective-permute|reduce-scatter)(-start)?\\('\n"
         "from match_jax.ppo import make_trainer\n"
         "from match_jax.presets import get_preset\n"
         "from match_jax.training import RunSpec, Run, batch_mesh, shard_envs\n"
@@ -150,6 +155,9 @@ def test_envs_shard_over_host_devices(tmp_path):
         "    leaf = state.env_state.obs['state']\n"
         "    assert len(leaf.sharding.device_set) == 2 and leaf.sharding.spec[1] == 'envs', leaf.sharding\n"
         "    state, m = run.chunk(state)\n"
+        "    hlo = run._chunk.lower(state).compile().as_text()\n"
+        "    synced = [l for l in hlo.splitlines() if 'rollout_step' in l and re.search(COLLECTIVE, l)]\n"
+        "    assert not synced, synced[0][:300]\n"
         "    for key in ('mean_reward', 'contact_fraction', 'episodes'):\n"
         "        np.testing.assert_allclose(m[key], ref[key], rtol=1e-4, atol=1e-6, err_msg=key)\n"
         "    np.testing.assert_allclose(state.env_state.obs['state'], ref_state.env_state.obs['state'], atol=1e-4)\n"
