@@ -43,6 +43,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--total-steps", type=int, default=None, help="env steps per seed (preset default)")
     parser.add_argument("--num-envs", type=int, default=None, help="parallel envs per seed (preset default)")
     parser.add_argument("--learning-rate", type=float, default=None)
+    parser.add_argument("--initial-log-std", type=float, default=None,
+                        help="the actor's initial pre-tanh log std (default: the preset's, README)")
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10)")
@@ -70,6 +72,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error(f"--break-force must be > 0 N, got {args.break_force}")
     if args.learning_rate is not None and not args.learning_rate > 0:
         parser.error(f"--learning-rate must be > 0, got {args.learning_rate}")
+    if args.initial_log_std is not None and not -5.0 < args.initial_log_std < 1.0:
+        parser.error(f"--initial-log-std must be in (-5, 1) (the actor's log-std bounds), got {args.initial_log_std}")
     if args.ssl_coef is not None and not args.ssl_coef >= 0:
         parser.error(f"--ssl-coef must be >= 0, got {args.ssl_coef}")
     return args
@@ -95,6 +99,8 @@ def build_spec(args: argparse.Namespace):
     if args.ssl_contact_only:
         overrides["ssl_samples"] = "contact"
     ppo = get_preset(args.preset, **overrides)
+    if args.initial_log_std is not None:
+        ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, initial_log_std=args.initial_log_std))
     env = FPiHConfig(control=ppo.control)
     if args.hole_noise_mm is not None:
         env = dataclasses.replace(env, hole_obs_noise=args.hole_noise_mm / 1000.0)

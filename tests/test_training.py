@@ -8,6 +8,7 @@ import os
 import pathlib
 import subprocess
 import sys
+import threading
 
 import jax
 import numpy as np
@@ -16,7 +17,7 @@ import pytest
 import train as train_cli
 from match_jax import checkpoints
 from match_jax.presets import get_preset
-from match_jax.training import Run, RunError, RunSpec, load_policy, read_metrics, train
+from match_jax.training import Run, RunError, RunSpec, _CheckpointWriter, load_policy, read_metrics, train
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -105,6 +106,8 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         ["--method", "match", "--total-steps", "0", "--out", str(tmp_path / "a")])
     assert "--time-budget-min must be a positive number of minutes, got -1.0" in error_of(
         ["--method", "match", "--time-budget-min", "-1", "--out", str(tmp_path / "a")])
+    assert "--initial-log-std must be in (-5, 1) (the actor's log-std bounds), got 2.0" in error_of(
+        ["--method", "match", "--initial-log-std", "2", "--out", str(tmp_path / "a")])
     (tmp_path / "empty").mkdir()
     assert train_cli.main(["--resume", "--out", str(tmp_path / "empty")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -205,3 +208,25 @@ def test_import_gives_one_cpu_device_per_core_unless_set(setting, expected):
     assert out.returncode == 0, out.stderr[-3000:]
     devices, cores = (int(v) for v in out.stdout.split()[-2:])
     assert devices == (cores if expected == "cores" else expected)
+
+
+def test_checkpoint_writer_runs_one_write_at_a_time_and_reraises():
+    events = []
+    release = threading.Event()
+
+    def slow_write(name):
+        release.wait(5)
+        events.append(name)
+
+    def failing_write():
+        raise OSError("disk full")
+
+    writer = _CheckpointWriter()
+    writer.submit(slow_write, "first")
+    assert events == []  # the write runs in the background
+    release.set()
+    writer.submit(failing_write)  # waits for "first" before starting the next write
+    assert events == ["first"]
+    with pytest.raises(OSError, match="disk full"):
+        writer.wait()
+    writer.close()
