@@ -72,8 +72,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error(f"--break-force must be > 0 N, got {args.break_force}")
     if args.learning_rate is not None and not args.learning_rate > 0:
         parser.error(f"--learning-rate must be > 0, got {args.learning_rate}")
-    if args.initial_log_std is not None and not -5.0 < args.initial_log_std < 1.0:
-        parser.error(f"--initial-log-std must be in (-5, 1) (the actor's log-std bounds), got {args.initial_log_std}")
+    if args.initial_log_std is not None:
+        from match_jax.networks import NetworkConfig
+        low, high = NetworkConfig.min_log_std, NetworkConfig.max_log_std
+        if not low < args.initial_log_std < high:
+            parser.error(f"--initial-log-std must be in ({low:g}, {high:g}) (the actor's log-std bounds), "
+                         f"got {args.initial_log_std}")
     if args.ssl_coef is not None and not args.ssl_coef >= 0:
         parser.error(f"--ssl-coef must be >= 0, got {args.ssl_coef}")
     return args
