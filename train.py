@@ -29,8 +29,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--method", choices=METHODS, help="pose | vices | hybrid (Hybrid-Basic) | match")
     parser.add_argument("--no-ssl", action="store_true", help="no supervised selection loss (beta = 0)")
     parser.add_argument("--ssl-coef", type=float, default=None,
-                        help="beta of the selection loss (default: 0.1 for MATCH with the selection term in "
-                             "the ratio, else 1)")
+                        help="beta of the selection loss, the weight of its mean over the 3 axes (default: 0.3 "
+                             "for MATCH with the selection term in the ratio, else 1)")
     parser.add_argument("--ssl-after-update", action="store_true",
                         help="experimental: SSL-only steps after the PPO epochs instead of inside every PPO loss")
     parser.add_argument("--ssl-contact-only", action="store_true",
@@ -48,9 +48,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10)")
-    parser.add_argument("--controller", choices=["paper", "factory"], default="paper",
-                        help="task-space law: the paper's J^T M_x (default) or IsaacLab Factory's J^T "
-                             "(k_p in N/m: 10x more compliant at the code's gains)")
+    parser.add_argument("--controller", choices=["paper", "factory"], default="factory",
+                        help="task-space law: IsaacLab Factory's u = J^T F as the authors' code runs it (default; "
+                             "k_p = 100 N/m at the end effector) or the paper's equation u = J^T M_x F "
+                             "(k_p x task inertia: 240-630 N/m at the spawn pose)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run directory")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks (resumable)")
@@ -110,8 +111,8 @@ def build_spec(args: argparse.Namespace):
         env = dataclasses.replace(env, hole_obs_noise=args.hole_noise_mm / 1000.0)
     if args.break_force is not None:
         env = dataclasses.replace(env, break_force=args.break_force)
-    if args.controller == "factory":
-        env = dataclasses.replace(env, controller=dataclasses.replace(env.controller, use_task_inertia=False))
+    env = dataclasses.replace(env, controller=dataclasses.replace(
+        env.controller, use_task_inertia=args.controller == "paper"))
     return RunSpec(ppo=ppo, env=env, num_seeds=args.seeds, seed=args.seed, preset=args.preset)
 
 

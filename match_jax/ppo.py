@@ -34,7 +34,10 @@ from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
 from match_jax.networks import Actor, Critic, NetworkConfig
 
 
-MATCH_IN_RATIO_SSL_BETA = 0.1  # default SSL weight of MATCH with the selection term in the PPO ratio
+# Default SSL weights, on the axis-mean BCE (`selection_loss`): MATCH with the selection term in the PPO
+# ratio 0.3, every other method 1.0 (the authors' weight).
+MATCH_IN_RATIO_SSL_BETA = 0.3
+SSL_BETA = 1.0
 
 
 @dataclasses.dataclass(frozen=True)
@@ -42,8 +45,8 @@ class PPOConfig:
     """Method, sizes and learning hyperparameters. Steps are env (policy) steps per seed."""
 
     method: str = "match"  # 'pose' | 'vices' | 'hybrid' (Hybrid-Basic) | 'match'
-    # beta of the supervised selection loss; 0 = the no-SSL ablations; None = the method's default
-    # (`ssl_beta`): 0.1 for MATCH with the selection term in the ratio, else 1 (README, "Training results")
+    # beta of the supervised selection loss (weight of the axis-mean BCE); 0 = the no-SSL ablations;
+    # None = the method's default (`ssl_beta`): 0.3 for MATCH with the selection term in the ratio, else 1
     ssl_coef: float | None = None
     selection_in_ratio: bool = True  # MATCH: Bernoulli term in the PPO ratio (paper) or not (authors' code)
     # 'joint': the SSL is added to every PPO minibatch loss; 'after': SSL-only minibatch steps follow the
@@ -114,11 +117,11 @@ class PPOConfig:
 
     @property
     def ssl_beta(self) -> float:
-        """The SSL weight in use: ssl_coef, or where that is None 0.1 for MATCH with the selection term in
-        the PPO ratio (with beta 1 that combination learned slowly or not at all) and 1 otherwise."""
+        """The SSL weight in use: ssl_coef, or where that is None 0.3 for MATCH with the selection term in
+        the PPO ratio and 1 otherwise (docs/training.md gives the evidence)."""
         if self.ssl_coef is not None:
             return float(self.ssl_coef)
-        return MATCH_IN_RATIO_SSL_BETA if self.method == "match" and self.selection_in_ratio else 1.0
+        return MATCH_IN_RATIO_SSL_BETA if self.method == "match" and self.selection_in_ratio else SSL_BETA
 
 
 class Transition(NamedTuple):
@@ -161,12 +164,14 @@ class Trainer(NamedTuple):
 
 
 def selection_loss(logits: jax.Array, contact_label: jax.Array, contact_only: bool = False) -> jax.Array:
-    """Supervised selection loss (before beta): sum over axes of BCE(p_force, psi), mean over the batch.
+    """Supervised selection loss (before beta): mean over axes and batch of BCE(p_force, psi).
+
+    The axis mean is the paper's form; beta times this equals (beta / 3) times the axis sum.
 
     logits: (..., 3) selection logits (log-odds of force control); contact_label: (..., 3) 0/1 per axis.
     contact_only: average over the samples with at least one axis in contact only (0 if there are none).
     """
-    per_sample = optax.sigmoid_binary_cross_entropy(logits, contact_label).sum(-1)
+    per_sample = optax.sigmoid_binary_cross_entropy(logits, contact_label).mean(-1)
     if not contact_only:
         return per_sample.mean()
     weight = contact_label.max(-1)

@@ -43,12 +43,14 @@ def _rotvec_error(rot, rot_target):
     return angle * axis
 
 
-def test_pose_law_equals_paper_formula(env):
-    """u = J^T M_x [k_p (x_d - x) - k_d xdot] + g(q) + null-space term, computed here with numpy."""
+@pytest.mark.parametrize("use_task_inertia", [False, True])
+def test_pose_law_equals_formula(env, use_task_inertia):
+    """u = J^T [k_p (x_d - x) - k_d xdot] + g(q) + null-space term (Factory, default), or with M_x in
+    front of the bracket (the paper's equation), computed here with numpy."""
     rng = np.random.default_rng(0)
     data = _home(env, qvel=rng.normal(0, 0.2, 7))
     dyn = _c_dynamics(env, data)
-    config = ControllerConfig()
+    config = ControllerConfig(use_task_inertia=use_task_inertia)
     target = _target(dyn, dyn.ee_pos + np.array([0.01, -0.02, 0.015]))
     rot_target = dyn.ee_rot @ np.array([[np.cos(0.05), -np.sin(0.05), 0], [np.sin(0.05), np.cos(0.05), 0], [0, 0, 1]])
     target = ControlTarget(**{**target.__dict__, "rot": rot_target, "posture": dyn.qpos + 0.1})
@@ -58,7 +60,9 @@ def test_pose_law_equals_paper_formula(env):
     xdot = jac @ dyn.qvel
     kp = np.array([100.0] * 3 + [30.0] * 3)
     err = np.concatenate([target.pos - dyn.ee_pos, _rotvec_error(dyn.ee_rot, rot_target)])
-    task = mx @ (kp * err - 2 * np.sqrt(kp) * xdot)
+    task = kp * err - 2 * np.sqrt(kp) * xdot
+    if use_task_inertia:
+        task = mx @ task
     posture_torque = mass @ (10.0 * (target.posture - dyn.qpos) - 2 * np.sqrt(10.0) * dyn.qvel)
     jbar = np.linalg.solve(mass, jac.T) @ mx
     null = (np.eye(7) - jac.T @ jbar.T) @ posture_torque
@@ -70,7 +74,7 @@ def test_pose_law_equals_paper_formula(env):
 
 
 def test_hybrid_law_force_axes(env):
-    """Force-selected axes: u_task = M_x [pose on position axes] + k_f (f_d - f) + f_d (default)."""
+    """Force-selected axes: u_task = [pose on position axes] + k_f (f_d - f) + f_d (default)."""
     data = _home(env)
     dyn = _c_dynamics(env, data, ee_force=np.array([0.0, 0.0, -2.0]))
     config = ControllerConfig()
@@ -81,7 +85,7 @@ def test_hybrid_law_force_axes(env):
     expected = dyn.jacobian.T @ np.array([0, 0, 0.5 * (-5.0) + (-5.0), 0, 0, 0])
     np.testing.assert_allclose(diff, expected, rtol=1e-5, atol=1e-6)
     # the paper's literal law multiplies the force term by M_x and has no feedforward
-    literal = ControllerConfig(force_through_task_inertia=True, force_feedforward=False)
+    literal = ControllerConfig(use_task_inertia=True, force_through_task_inertia=True, force_feedforward=False)
     diff = np.asarray(hybrid_torque(dyn, target, literal)) - np.asarray(hybrid_torque(dyn, pose_only, literal))
     mx = np.linalg.inv(dyn.jacobian @ np.linalg.solve(dyn.mass_matrix, dyn.jacobian.T))
     np.testing.assert_allclose(diff, dyn.jacobian.T @ (mx @ np.array([0, 0, 0.5 * -5.0, 0, 0, 0])), rtol=1e-4, atol=1e-5)
@@ -105,17 +109,33 @@ def _simulate(env, config, target_fn, steps):
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
-def test_pose_step_converges_without_overshoot(env, axis):
-    """A 2 cm step of the position target: within 5 % after 1 s, overshoot below 5 % (1 mm), 1 % after 2 s."""
+def test_pose_step_with_task_inertia_converges_without_overshoot(env, axis):
+    """Paper's law (M_x, critically damped per unit mass): a 2 cm step of the position target is within
+    5 % after 1 s, overshoots below 5 % (1 mm), and is within 1 % after 2 s."""
     start = _c_dynamics(env, _home(env)).ee_pos
     goal = start.copy()
     goal[axis] += 0.02
     posture = np.array(env.home_qpos)
-    positions, _ = _simulate(env, ControllerConfig(), lambda dyn: _target(dyn, goal, posture=posture), 240)
+    config = ControllerConfig(use_task_inertia=True)
+    positions, _ = _simulate(env, config, lambda dyn: _target(dyn, goal, posture=posture), 240)
     progress = (positions[:, axis] - start[axis]) / 0.02
     assert abs(progress[120] - 1.0) < 0.05, f"after 1 s: {progress[120]:.3f} of the step"
     assert progress.max() < 1.05, f"overshoot {100 * (progress.max() - 1):.1f} %"
     assert abs(progress[-1] - 1.0) < 0.01
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_pose_step_factory_law_is_underdamped_and_settles(env, axis):
+    """Factory's law (default: k_p = 100 N/m, k_d = 2 sqrt(k_p) N s/m on the arm's 2-6 kg task inertia,
+    damping ratio 1 / sqrt(M) < 1): a 2 cm step overshoots by 10-35 % and is within 2 % after 5 s."""
+    start = _c_dynamics(env, _home(env)).ee_pos
+    goal = start.copy()
+    goal[axis] += 0.02
+    posture = np.array(env.home_qpos)
+    positions, _ = _simulate(env, ControllerConfig(), lambda dyn: _target(dyn, goal, posture=posture), 600)
+    progress = (positions[:, axis] - start[axis]) / 0.02
+    assert 1.10 < progress.max() < 1.35, f"overshoot {100 * (progress.max() - 1):.1f} %"
+    assert abs(progress[-1] - 1.0) < 0.02, f"after 5 s: {progress[-1]:.3f} of the step"
 
 
 def test_free_space_force_selection_accelerates(env):
@@ -125,7 +145,7 @@ def test_free_space_force_selection_accelerates(env):
     start = _c_dynamics(env, _home(env)).ee_pos
     posture = np.array(env.home_qpos)
     steps = 20  # 0.17 s: the peg tip starts 4 cm above the table and must not reach it
-    paper_law = ControllerConfig(force_damping=(0.0, 0.0, 0.0))
+    paper_law = ControllerConfig(use_task_inertia=True, force_damping=(0.0, 0.0, 0.0))
     pos_force, vel_force = _simulate(env, paper_law, lambda dyn: _target(
         dyn, start, axes=(1.0, 1.0, 0.0), force=(0.0, 0.0, -5.0), posture=posture), steps)
     _, vel_pos = _simulate(env, paper_law, lambda dyn: _target(
@@ -137,23 +157,30 @@ def test_free_space_force_selection_accelerates(env):
     assert speed_force[-1] > 0.15  # m/s after 0.17 s: 30x the ~5 mm/s that is safe at contact
 
 
-def test_force_axis_damping_bounds_free_space_speed(env):
-    """Default law (k_vf = 20 /s): free-space force selection still drives the arm, but toward the
-    terminal speed (M_x^-1)_zz |F| / k_vf instead of accelerating without bound (closed loop:
-    zddot = -k_vf zdot + (M_x^-1 F)_z)."""
+@pytest.mark.parametrize("use_task_inertia", [False, True])
+def test_force_axis_damping_bounds_free_space_speed(env, use_task_inertia):
+    """Force-axis damping k_vf = 20 (N s/m on Factory's law, the default; 1/s through M_x on the paper's):
+    free-space force selection still drives the arm, but toward a terminal speed instead of accelerating
+    without bound. Closed loop along z: zddot = a_F - k zdot, so v(t) = (a_F / k) (1 - exp(-k t)); on the
+    M_x law the task space is decoupled: a_F = (M_x^-1)_zz |F|, k = k_vf; on Factory's law the held x, y
+    and rotation leave z the inertia (M_x)_zz: a_F = |F| / (M_x)_zz, k = k_vf / (M_x)_zz."""
     start_dyn = _c_dynamics(env, _home(env))
     posture = np.array(env.home_qpos)
-    config = ControllerConfig()
+    config = ControllerConfig(use_task_inertia=use_task_inertia)
     assert config.force_damping[2] == 20.0
     force = -5.0 * (1.0 + config.force_gain)  # task force on the axis in free space (feedforward + P)
     mx_inv = start_dyn.jacobian @ np.linalg.solve(start_dyn.mass_matrix, start_dyn.jacobian.T)
-    terminal = mx_inv[2, 2] * abs(force) / config.force_damping[2]  # m/s
+    inertia_z = 1.0 / mx_inv[2, 2] if use_task_inertia else np.linalg.inv(mx_inv)[2, 2]  # kg
+    accel = abs(force) / inertia_z  # m/s^2
+    rate = config.force_damping[2] / (1.0 if use_task_inertia else inertia_z)  # 1/s
+    steps = 30
+    expected = accel / rate * (1.0 - np.exp(-rate * np.arange(1, steps + 1) / 120.0))  # m/s
     _, vel = _simulate(env, config, lambda dyn: _target(
-        dyn, start_dyn.ee_pos, axes=(1.0, 1.0, 0.0), force=(0.0, 0.0, -5.0), posture=posture), 30)
+        dyn, start_dyn.ee_pos, axes=(1.0, 1.0, 0.0), force=(0.0, 0.0, -5.0), posture=posture), steps)
     speed = -vel[:, 2]
-    assert speed[3] > 0.2 * terminal, "force selection must still move the arm"
-    assert speed.max() < 1.3 * terminal, (speed.max(), terminal)
-    assert abs(speed[-1] - terminal) < 0.25 * terminal, (speed[-1], terminal)
+    assert speed[3] > 0.5 * expected[3], "force selection must still move the arm"
+    assert speed.max() < 1.3 * accel / rate, (speed.max(), accel / rate)
+    assert abs(speed[-1] - expected[-1]) < 0.25 * expected[-1], (speed[-1], expected[-1])
 
 
 def test_controller_config_rejects_bad_values():

@@ -67,7 +67,7 @@ class ControllerConfig:
     force_through_task_inertia: bool = False
     force_damping: tuple[float, float, float] = (20.0, 20.0, 20.0)
     null_stiffness: float = 10.0
-    use_task_inertia: bool = True
+    use_task_inertia: bool = False
     gravity_compensation: bool = True
     task_inertia_damping: float = 1e-6
 
