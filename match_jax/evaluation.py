@@ -12,11 +12,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from match_jax.envs.fpih import BREAK_SAMPLINGS
+
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
 # Per-step info recorded during a rollout: name -> key in State.info.
 RECORDED = ("success", "engaged", "broken", "in_contact", "mean_force", "max_force", "phase",
-            "position_axes", "contact_axes", "truncation")
+            "position_axes", "contact_axes", "truncation", "ee_force")
 
 
 def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_policy_state: bool = True,
@@ -40,9 +42,10 @@ def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_poli
         def body(carry, step_key):
             state, pstate, ended = carry
             action, pstate = policy(state.obs, pstate, step_key)
-            obs_before = state.obs["state"]
+            obs_before, contact_before = state.obs["state"], state.info["contact_axes"]
             state = env.step(state, action)
             record = {name: state.info[name] for name in RECORDED}
+            record["contact_axes_before"] = contact_before  # the contact the action was chosen in
             if record_obs:
                 record["policy_obs"] = obs_before
             record["done_before"] = ended
@@ -62,15 +65,25 @@ def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_poli
     return rollout
 
 
-def apply_break_threshold(traj: dict, break_force: float) -> dict:
+def break_signal(traj: dict, sampling: str = "peak") -> np.ndarray:
+    """The force (N) compared with the break threshold on each step, as `FPiHConfig.break_sampling` says:
+    'peak': max |F| over the step's physics steps; 'policy_step': |F| read once, at the end of the step."""
+    if sampling == "peak":
+        return np.asarray(traj["max_force"])
+    if sampling == "policy_step":
+        return np.linalg.norm(np.asarray(traj["ee_force"]), axis=-1)
+    raise ValueError(f"break sampling must be one of {BREAK_SAMPLINGS}, got {sampling!r}")
+
+
+def apply_break_threshold(traj: dict, break_force: float, sampling: str = "peak") -> dict:
     """The trajectory a peg that breaks at `break_force` N would have had, from an unbreakable rollout.
 
-    Breaking only ends the episode, so up to the first step whose max |F| over its physics steps
+    Breaking only ends the episode, so up to the first step whose break signal (`break_signal`)
     reaches the threshold the two rollouts are identical; later steps are marked `done_before`.
     """
     traj = {k: np.asarray(v) for k, v in traj.items()}
     alive = 1.0 - traj["done_before"]
-    broken = ((traj["max_force"] >= break_force) & (alive > 0)).astype(np.float32)
+    broken = ((break_signal(traj, sampling) >= break_force) & (alive > 0)).astype(np.float32)
     ended = np.maximum(broken, traj["done"] * alive)
     done_before = np.zeros_like(alive)
     done_before[1:] = np.maximum.accumulate(ended, axis=0)[:-1]
@@ -88,6 +101,11 @@ def episode_metrics(traj: dict, policy_dt: float) -> dict[str, np.ndarray]:
     mean_force_n: mean force magnitude (N) over in-contact steps, NaN if never in contact.
     force_selected_contact / force_selected_free: fraction of in-contact / free-space steps on which
       force control was selected, averaged over the three axes (NaN if no such step).
+    axis_contact_steps, axis_force_in_contact_steps, axis_free_steps, axis_force_in_free_steps: (B, 3)
+      per-axis step counts behind the per-axis selection rates of `summarize`: an axis is in contact on a
+      step when |F| along that world axis exceeded the env's contact threshold (1 N) at the start of the
+      step (the contact the action was chosen in, the selection loss's label), force-selected when the
+      step ran that axis under force control.
     """
     traj = {k: np.asarray(v) for k, v in traj.items()}
     alive = 1.0 - traj["done_before"]  # (T, B)
@@ -110,6 +128,10 @@ def episode_metrics(traj: dict, policy_dt: float) -> dict[str, np.ndarray]:
         sel_contact = np.where(n_contact > 0, (force_sel * contact).sum(axis=0) / n_contact, np.nan)
         n_free = free.sum(axis=0)
         sel_free = np.where(n_free > 0, (force_sel * free).sum(axis=0) / n_free, np.nan)
+    axis_alive = (alive > 0)[..., None]
+    axis_contact = (traj["contact_axes_before"] > 0) & axis_alive  # (T, B, 3)
+    axis_free = (traj["contact_axes_before"] <= 0) & axis_alive
+    axis_force = traj["position_axes"] < 0.5
     return {
         "success": success.astype(np.float64),
         "broken": broken.astype(np.float64),
@@ -117,7 +139,25 @@ def episode_metrics(traj: dict, policy_dt: float) -> dict[str, np.ndarray]:
         "mean_force_n": mean_force,
         "force_selected_contact": sel_contact,
         "force_selected_free": sel_free,
+        "axis_contact_steps": axis_contact.sum(axis=0),
+        "axis_force_in_contact_steps": (axis_contact & axis_force).sum(axis=0),
+        "axis_free_steps": axis_free.sum(axis=0),
+        "axis_force_in_free_steps": (axis_free & axis_force).sum(axis=0),
     }
+
+
+def axis_selection_rates(metrics: dict[str, np.ndarray]) -> dict[str, float]:
+    """Per-axis force selection, pooled over episodes: sum_i [force_i and contact_i] / sum_i contact_i
+    over all steps and axes i (the paper's figure), the same for each axis x, y, z, and likewise on
+    free-space axes. NaN where there is no such axis-step."""
+    out = {}
+    for where in ("contact", "free"):
+        hits = np.asarray(metrics[f"axis_force_in_{where}_steps"], np.float64).sum(axis=0)  # (3,)
+        total = np.asarray(metrics[f"axis_{where}_steps"], np.float64).sum(axis=0)
+        out[f"force_selected_{where}_per_axis"] = float(hits.sum() / total.sum()) if total.sum() > 0 else float("nan")
+        for i, axis in enumerate("xyz"):
+            out[f"force_selected_{where}_{axis}"] = float(hits[i] / total[i]) if total[i] > 0 else float("nan")
+    return out
 
 
 def summarize(metrics: dict[str, np.ndarray]) -> dict[str, float]:
@@ -135,6 +175,7 @@ def summarize(metrics: dict[str, np.ndarray]) -> dict[str, float]:
         "mean_force_n": nanmean(metrics["mean_force_n"]),
         "force_selected_contact": nanmean(metrics["force_selected_contact"]),
         "force_selected_free": nanmean(metrics["force_selected_free"]),
+        **axis_selection_rates(metrics),
     }
 
 

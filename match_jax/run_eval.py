@@ -21,11 +21,14 @@ import numpy as np
 
 from match_jax import analysis, evaluation
 from match_jax.envs import FPiHEnv
+from match_jax.envs.fpih import BREAK_SAMPLINGS
 from match_jax.ppo import deterministic_action
 from match_jax.training import RunError, batch_mesh, load_policies, load_spec, shard_batch
 
 COLUMNS = ("success_rate", "break_rate", "mean_time_to_success_s", "mean_force_n", "force_selected_contact",
-           "force_selected_free")
+           "force_selected_free", "force_selected_contact_per_axis", "force_selected_free_per_axis",
+           "break_rate_peak", "break_rate_policy_step")
+AXIS_COLUMNS = tuple(f"force_selected_{where}_{axis}" for where in ("contact", "free") for axis in "xyz")
 
 
 def make_policy(trainer):
@@ -96,14 +99,21 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
         for force in break_forces:
             per_seed, seed_trajs = [], []
             for i in range(spec.num_seeds):
-                seed_traj = {k: v[i, li] for k, v in traj.items()}
-                if math.isfinite(force):
-                    seed_traj = evaluation.apply_break_threshold(seed_traj, force)
+                unbroken = {k: v[i, li] for k, v in traj.items()}
+                seed_traj, break_rates = unbroken, {}
+                for sampling in BREAK_SAMPLINGS:  # both samplings on the same episodes
+                    broken = evaluation.apply_break_threshold(unbroken, force, sampling) if math.isfinite(force) \
+                        else unbroken
+                    break_rates[f"break_rate_{sampling}"] = evaluation.summarize(
+                        evaluation.episode_metrics(broken, env.dt))["break_rate"]
+                    if sampling == spec.env.break_sampling:
+                        seed_traj = broken
                 seed_trajs.append(seed_traj)
                 summary = evaluation.summarize(evaluation.episode_metrics(seed_traj, env.dt))
-                summary["seed"] = spec.seed + i
+                summary.update(break_rates, seed=spec.seed + i)
                 if not hybrid:  # no selection: the force-selection columns do not apply
-                    summary["force_selected_contact"] = summary["force_selected_free"] = float("nan")
+                    for column in ("force_selected_contact", "force_selected_free") + COLUMNS[6:8] + AXIS_COLUMNS:
+                        summary[column] = float("nan")
                 else:
                     summary.update(analysis.contact_selection_rates(
                         seed_traj["in_contact"], seed_traj["p_force"], 1.0 - seed_traj["done_before"]))
@@ -118,6 +128,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
                 "noise_mm": level,
                 "noise_type": noise_type,
                 "break_force_n": force if math.isfinite(force) else None,
+                "break_sampling": spec.env.break_sampling,
                 "per_seed": per_seed,
                 "aggregate": _aggregate(per_seed, hybrid),
             }
@@ -133,7 +144,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
 
 
 def _aggregate(per_seed: list[dict], hybrid: bool) -> dict:
-    columns = COLUMNS + (("p_force_contact", "p_force_free") if hybrid else ())
+    columns = COLUMNS + AXIS_COLUMNS + (("p_force_contact", "p_force_free") if hybrid else ())
     out = {}
     for column in columns:
         mean, se = evaluation.mean_and_standard_error([s[column] for s in per_seed])
@@ -158,8 +169,9 @@ def format_result(result: dict) -> str:
     head = (f"{result['method']} (ssl {result['ssl_coef']:g}), {result['checkpoint']} checkpoint, "
             f"{result['episodes_per_seed']} episodes x {result['seeds']} seeds, hole noise {result['noise_mm']:g} mm "
             f"({result['noise_type']}), break force {result['break_force_n'] or 'none'}")
-    names = ("success %", "break %", "time (s)", "force (N)", "F-sel contact %", "F-sel free %")
-    scale = (100, 100, 1, 1, 100, 100)
+    names = ("success %", "break %", "time (s)", "force (N)", "F-sel contact %", "F-sel free %",
+             "F-sel/axis cont %", "F-sel/axis free %", "break peak %", "break 15Hz %")
+    scale = (100, 100, 1, 1, 100, 100, 100, 100, 100, 100)
     lines = [head, "  seed    " + "".join(f"{n:>17}" for n in names)]
     for s in result["per_seed"]:
         cells = "".join(f"{_fmt(s[c] * k):>17}" for c, k in zip(COLUMNS, scale))

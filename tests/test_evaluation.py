@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from match_jax.evaluation import episode_metrics, summarize
+from match_jax.evaluation import apply_break_threshold, episode_metrics, summarize
 
 T, DT = 6, 1.0 / 15.0
 
@@ -12,6 +12,8 @@ def _traj(B):
     return {
         "success": np.zeros((T, B)), "broken": np.zeros((T, B)), "in_contact": np.zeros((T, B)),
         "mean_force": np.zeros((T, B)), "position_axes": np.ones((T, B, 3)), "done_before": np.zeros((T, B)),
+        "contact_axes_before": np.zeros((T, B, 3)), "max_force": np.zeros((T, B)), "ee_force": np.zeros((T, B, 3)),
+        "done": np.zeros((T, B)),
     }
 
 
@@ -47,6 +49,58 @@ def test_known_episodes():
     assert s["break_rate"] == pytest.approx(1 / 3)
     assert s["mean_time_to_success_s"] == pytest.approx(4 * DT)
     assert s["mean_force_n"] == pytest.approx(3.5)
+
+
+def test_per_axis_force_selection_against_hand_count():
+    """sum_i [force_i and contact_i] / sum_i contact_i over steps and axes, pooled over episodes; dead
+    steps (after an episode ended) never count."""
+    traj = _traj(2)
+    x, y, z = 0, 1, 2
+    # episode 0: z in contact at steps 2-5, x at steps 3-4; force on z at 2-4, on x at 3, on y at 0 (free)
+    traj["contact_axes_before"][2:, 0, z] = 1
+    traj["contact_axes_before"][3:5, 0, x] = 1
+    traj["position_axes"][2:5, 0, z] = 0.0
+    traj["position_axes"][3, 0, x] = 0.0
+    traj["position_axes"][0, 0, y] = 0.0
+    # episode 1: ended after step 2; z in contact at 1-2 (and at dead step 4); force on z at 1, on x at 0
+    traj["done_before"][3:, 1] = 1
+    traj["contact_axes_before"][1:3, 1, z] = 1
+    traj["contact_axes_before"][4, 1, z] = 1
+    traj["position_axes"][1, 1, z] = 0.0
+    traj["position_axes"][0, 1, x] = 0.0
+    traj["position_axes"][4, 1, :] = 0.0
+    s = summarize(episode_metrics(traj, DT))
+    # in contact: z 4 + 2 axis-steps (3 + 1 forced), x 2 (1 forced), y none
+    assert s["force_selected_contact_per_axis"] == pytest.approx(5 / 8)
+    assert s["force_selected_contact_x"] == pytest.approx(1 / 2)
+    assert np.isnan(s["force_selected_contact_y"])
+    assert s["force_selected_contact_z"] == pytest.approx(4 / 6)
+    # free: 27 alive axis-steps - 8 in contact = 19; forced: y at ep 0 step 0, x at ep 1 step 0
+    assert s["force_selected_free_per_axis"] == pytest.approx(2 / 19)
+    assert s["force_selected_free_x"] == pytest.approx(1 / 7)
+    assert s["force_selected_free_y"] == pytest.approx(1 / 9)
+    assert s["force_selected_free_z"] == pytest.approx(0.0)
+
+
+def test_break_samplings_differ_on_a_force_spike():
+    """A 14 N spike inside a policy step that ends at 6 N breaks a 10 N peg by the peak, not by the
+    once-per-step reading; a step that ends at 12 N breaks it by both."""
+    traj = _traj(2)
+    traj["max_force"][2, :] = 14.0
+    traj["ee_force"][2, :] = [0.0, 0.0, -6.0]
+    traj["max_force"][4, 1] = 12.5
+    traj["ee_force"][4, 1] = [0.0, 9.0, -7.5]  # |F| = 11.7 N
+    peak = apply_break_threshold(traj, 10.0, "peak")
+    step = apply_break_threshold(traj, 10.0, "policy_step")
+    np.testing.assert_array_equal(peak["broken"][2], [1, 1])
+    np.testing.assert_array_equal(peak["done_before"][3:], np.ones((T - 3, 2)))
+    np.testing.assert_array_equal(step["broken"][:, 0], np.zeros(T))
+    assert np.nonzero(step["broken"][:, 1])[0][0] == 4
+    assert step["done_before"][5, 1] == 1 and step["done_before"][5, 0] == 0
+    assert summarize(episode_metrics(peak, DT))["break_rate"] == 1.0
+    assert summarize(episode_metrics(step, DT))["break_rate"] == 0.5
+    with pytest.raises(ValueError, match="wrist"):
+        apply_break_threshold(traj, 10.0, "wrist")
 
 
 def test_success_after_break_does_not_count():

@@ -57,3 +57,14 @@ def test_suite_selection_not_in_ratio_applies_to_match_only(tmp_path):
     assert experiments.run_spec("hybrid", cfg).ppo.selection_in_ratio is True
     default = experiments.parse_args(["--out", str(tmp_path)])
     assert experiments.run_spec("match", default).ppo.selection_in_ratio is True
+
+
+def test_suite_unbreakable_runs_train_without_breaks(tmp_path):
+    import math
+
+    cfg = experiments.parse_args(["--out", str(tmp_path)])
+    for name in ("pose_unbreakable", "vices_unbreakable", "hybrid_unbreakable", "match_unbreakable"):
+        spec = experiments.run_spec(name, cfg)
+        assert math.isinf(spec.env.break_force) and experiments.unbreakable(name)
+        assert spec.ppo.method == experiments.SUITE[name.removesuffix("_unbreakable")][1]
+    assert experiments.run_spec("match", cfg).env.break_force == 10.0 and not experiments.unbreakable("match")

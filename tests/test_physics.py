@@ -145,3 +145,57 @@ def test_force_control_holds_commanded_force(press_experiment):
     forces = np.asarray(press["forces"][i, -15:, 2])
     assert np.all(np.abs(forces + 5.0) < 0.5), forces
     assert float(np.max(press["max_forces"][i, 20:])) < 7.0
+
+
+def test_static_stiffness_at_the_end_effector_is_factorys():
+    """Factory's law (default): settled displacement per newton at the end effector along x, y, z is
+    1 / (100 N/m) within 20 %. The paper's J^T M_x law is at least twice as stiff on every axis."""
+    import dataclasses
+
+    from match_jax.controllers import ControllerConfig
+    from match_jax.envs import FPiHConfig, FPiHEnv
+    from match_jax.probes import static_compliance
+    from conftest import QUIET
+
+    config = FPiHConfig(control="pose", **QUIET)
+    compliance = static_compliance(FPiHEnv(config), force_n=1.0, seconds=5.0)  # m/N
+    np.testing.assert_allclose(compliance, 1.0 / 100.0, rtol=0.2)
+    paper = dataclasses.replace(config, controller=ControllerConfig(use_task_inertia=True))
+    paper_compliance = static_compliance(FPiHEnv(paper), force_n=1.0, seconds=5.0)
+    assert np.all(paper_compliance < 0.5 * compliance), paper_compliance
+
+
+def test_break_sampling_peak_vs_once_per_policy_step():
+    """A scripted ram (full-speed position descent onto the block, threshold 20 N): the contact spike
+    breaks the peg when the peak over physics steps is sampled (default), not when the force is read
+    once per policy step (the authors' sampling), whose reading after the impact is far lower."""
+    import dataclasses
+    import math
+
+    from match_jax.envs import FPiHConfig, FPiHEnv
+    from conftest import QUIET
+
+    with pytest.raises(ValueError, match="break_sampling"):
+        FPiHConfig(break_sampling="wrist")
+
+    def ram(sampling):
+        env = FPiHEnv(FPiHConfig(break_force=20.0, break_sampling=sampling, **QUIET))
+        action = env.neutral_action().at[env.action_space.position[2]].set(-1.0)
+
+        def rollout(key):
+            def body(state, _):
+                state = env.step(state, action)
+                return state, (state.info["broken"], state.info["max_force"],
+                               jnp.linalg.norm(state.info["ee_force"]))
+            return jax.lax.scan(body, env.reset(key), None, length=20)[1]
+
+        return [np.asarray(x) for x in jax.jit(rollout)(jax.random.PRNGKey(0))]
+
+    broken_peak, peak, _ = ram("peak")
+    broken_step, peak_step, reading = ram("policy_step")
+    assert broken_peak.any(), f"the ram must break the peg by its peak: max {peak.max():.1f} N"
+    first = int(np.argmax(broken_peak > 0))
+    assert peak[first] >= 20.0
+    assert not broken_step.any(), f"once-per-step reading broke it: {reading.max():.1f} N"
+    assert peak_step.max() >= 20.0 > reading.max()  # the same ram: the spike is there, unread
+    assert not math.isclose(peak_step.max(), reading.max())
