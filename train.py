@@ -44,7 +44,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--num-envs", type=int, default=None, help="parallel envs per seed (preset default)")
     parser.add_argument("--learning-rate", type=float, default=None)
     parser.add_argument("--initial-log-std", type=float, default=None,
-                        help="the actor's initial pre-tanh log std (default: the preset's, README)")
+                        help="the actor's initial pre-tanh log std (default: the preset's, docs/training.md)")
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10)")
@@ -52,6 +52,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="task-space law: IsaacLab Factory's u = J^T F as the authors' code runs it (default; "
                              "k_p = 100 N/m at the end effector) or the paper's equation u = J^T M_x F "
                              "(k_p x task inertia: 240-630 N/m at the spawn pose)")
+    parser.add_argument("--force-law", choices=["damped", "literal"], default="damped",
+                        help="force-controlled axes: k_f (f_d - f) + f_d - k_vf xdot (default) or the literal "
+                             "k_f (f_d - f), no feed-forward and no damping (the paper's and the authors' law)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run directory")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks (resumable)")
@@ -111,8 +114,10 @@ def build_spec(args: argparse.Namespace):
         env = dataclasses.replace(env, hole_obs_noise=args.hole_noise_mm / 1000.0)
     if args.break_force is not None:
         env = dataclasses.replace(env, break_force=args.break_force)
-    env = dataclasses.replace(env, controller=dataclasses.replace(
-        env.controller, use_task_inertia=args.controller == "paper"))
+    controller = dataclasses.replace(env.controller, use_task_inertia=args.controller == "paper")
+    if args.force_law == "literal":
+        controller = dataclasses.replace(controller, force_feedforward=False, force_damping=(0.0, 0.0, 0.0))
+    env = dataclasses.replace(env, controller=controller)
     return RunSpec(ppo=ppo, env=env, num_seeds=args.seeds, seed=args.seed, preset=args.preset)
 
 

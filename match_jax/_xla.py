@@ -1,4 +1,4 @@
-"""CPU speed: XLA's CPU fusion emitters make MJX 25-1000x slower (shared/DESIGN.md), and one XLA
+"""CPU speed: XLA's CPU fusion emitters make MJX 25-1000x slower (docs/benchmarks.md), and one XLA
 CPU device runs a vmapped MJX step on about one core.
 
 `enable_fast_cpu_flags()` merges `--xla_cpu_use_fusion_emitters=false` into XLA_FLAGS, keeping
@@ -11,7 +11,7 @@ for jaxlib < 0.11.
 `enable_host_devices()` gives JAX one CPU device per usable core (`JAX_NUM_CPU_DEVICES`), so the
 trainer and the evaluator can shard their envs over the cores: measured on the 2-core machine, a
 128-env contact-rich rollout ran 1.57x faster sharded over 2 CPU devices than on one, and an
-unsharded program runs as before on device 0 (README, "Benchmark"). A user's own
+unsharded program runs as before on device 0 (docs/benchmarks.md). A user's own
 `JAX_NUM_CPU_DEVICES` or `--xla_force_host_platform_device_count` wins; `JAX_NUM_CPU_DEVICES=1`
 turns it off. It only affects the CPU backend (on a GPU machine `jax.devices()` is still the GPUs).
 """

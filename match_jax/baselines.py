@@ -29,9 +29,9 @@ class SpiralConfig:
     """Spiral-search parameters (m, m/s, m/s^2, s, N)."""
 
     hover_height: float = 0.003  # peg tip above the observed hole top before the descent
-    transit_height: float = 0.005  # tip height while still more than `align_radius` off in xy
+    transit_height: float = 0.008  # tip height while still more than `align_radius` off in xy
     align_radius: float = 0.002
-    approach_speed: float = 0.05  # free-space speed cap (far from any surface)
+    approach_speed: float = 0.03  # free-space speed cap (far from any surface)
     approach_time: float = 0.2  # s: free-space motion aims at a velocity of (remaining error / this)
     aligned_radius: float = 0.001  # xy error (and z error) below which the descent starts
     descend_speed: float = 0.004  # descent toward the hole top (slow: ~10 kg arm inertia, 10 N peg)
@@ -59,6 +59,9 @@ class SpiralConfig:
     stall_steps: int = 2  # ... for this many policy steps in a row
     approach_gain: float = 2.0
     force_filter: float = 0.3  # EMA weight of the new force observation
+    # N s/m: extra lead of the position target per m/s of velocity error (v_cmd - v), so the compliant
+    # arm (task inertia up to ~10 kg against k_d = 20 N s/m) reaches a commanded velocity in ~0.1 s
+    velocity_gain: float = 80.0
 
 
 def _position_action(delta, pos_scale: float, gain: float):
@@ -111,8 +114,8 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
     def to_position_action(delta):
         return _position_action(delta, acfg.pos_scale, config.approach_gain)
 
-    def velocity_action(v):  # smoothed position action that makes the PD settle at velocity v (m/s, 3)
-        return v * lead_time / acfg.pos_scale
+    def velocity_action(v, vel):  # smoothed position action driving the PD to velocity v (m/s, 3)
+        return (v * lead_time + config.velocity_gain * (v - vel) / kp) / acfg.pos_scale
 
     def free_velocity(error, speed_cap):  # velocity toward a target `error` away, capped in norm
         v = error / config.approach_time
@@ -156,7 +159,7 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
         v_xy = jnp.where(phase == DESCEND, free_velocity(-rel[:2], config.approach_speed), jnp.zeros(2))
         v_hold = jnp.concatenate([v_xy, -down_speed[None]])
         v_cmd = jnp.where(phase == APPROACH, v_approach, v_hold)
-        motion = velocity_action(v_cmd)
+        motion = velocity_action(v_cmd, vel)
 
         # Spiral: track an Archimedean spiral around the observed hole (with velocity feed-forward) and
         # hold still once the tip starts sinking into the chamfer.

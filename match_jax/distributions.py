@@ -39,7 +39,7 @@ from match_jax.controllers.action_spaces import ActionSpace, get_action_space
 
 LOG_2PI = math.log(2.0 * math.pi)
 LOG_2 = math.log(2.0)
-# p(position) at initialisation (DESIGN.md): the selection logit bias is log(p_force / (1 - p_force)).
+# p(position) at initialisation (the paper's ~93 %): the selection logit bias is log(p_force / (1 - p_force)).
 INITIAL_P_POSITION = 0.93
 
 

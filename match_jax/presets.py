@@ -5,8 +5,8 @@ run and a paper run solve the same task.
 - `paper`: 256 envs per seed, 150-step rollouts (one episode), 3M env steps per seed, SimBa actor
   2 x 256 and critic 3 x 1024 (paper). For GPUs. Initial pre-tanh std 0.135 (log -2) as in `cpu`: with
   0.5 the policy learned to hover above the block, at this preset (5 of 5 seeds on an H100, no contact
-  by 1.38M steps) and at the cpu preset alike (README, "Training results").
-- `cpu`: sized for a 2-core CPU (measured, README): 128 envs per seed, smaller SimBa networks
+  by 1.38M steps) and at the cpu preset alike (docs/training.md).
+- `cpu`: sized for a 2-core CPU (measured: docs/benchmarks.md): 128 envs per seed, smaller SimBa networks
   (actor 1 x 128, critic 2 x 128), 5M env steps budget.
 - `tiny`: a few envs and short rollouts, for smoke tests; it learns nothing.
 """

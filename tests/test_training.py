@@ -230,3 +230,15 @@ def test_checkpoint_writer_runs_one_write_at_a_time_and_reraises():
     with pytest.raises(OSError, match="disk full"):
         writer.wait()
     writer.close()
+
+
+def test_train_cli_controller_and_force_law_flags(tmp_path):
+    """Default: Factory's law with the damped, feed-forward force law; the paper's M_x law and the
+    literal force law are one flag each."""
+    spec = train_cli.build_spec(train_cli.parse_args(["--method", "match", "--out", str(tmp_path)]))
+    c = spec.env.controller
+    assert not c.use_task_inertia and c.force_feedforward and c.force_damping == (20.0, 20.0, 20.0)
+    spec = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "match", "--controller", "paper", "--force-law", "literal", "--out", str(tmp_path)]))
+    c = spec.env.controller
+    assert c.use_task_inertia and not c.force_feedforward and c.force_damping == (0.0, 0.0, 0.0)

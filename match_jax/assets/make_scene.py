@@ -8,7 +8,7 @@ Sources of the numbers (facts, not copied code):
 - Joint position limits and torque limits: FR3 datasheet.
 - Link masses, centres of mass and principal inertias: published identified dynamic parameters of
   the FR3 (the same values MuJoCo Menagerie's FR3 model carries), expressed in the DH link frames.
-- Peg and hole dimensions: the paper and IsaacLab Factory (see shared/DESIGN.md).
+- Peg and hole dimensions: the paper and IsaacLab Factory (docs/task.md).
 """
 
 from __future__ import annotations

@@ -21,14 +21,14 @@ import numpy as np
 
 @dataclasses.dataclass(frozen=True)
 class ActionConfig:
-    """Scaling of actions to controller targets (DESIGN.md / Factory values)."""
+    """Scaling of actions to controller targets (IsaacLab Factory's and the authors' values)."""
 
     pos_scale: float = 0.02  # m per policy step at |a| = 1
     pos_box: float = 0.05  # m, half-width of the target box around the observed hole top
     yaw_scale: float = 0.1  # rad per policy step at |a| = 1
     force_xy_max: float = 20.0  # N
     force_z_range: tuple[float, float] = (-20.0, 0.0)  # N (robot on environment; < 0 presses down)
-    stiffness_range: tuple[float, float] = (0.0, 200.0)  # VICES k_p range
+    stiffness_range: tuple[float, float] = (0.0, 200.0)  # VICES k_p range, N/m on Factory's law
     ema: float = 0.2  # weight of the new action
     selection_threshold: float = 0.5  # force control on an axis when its selection > threshold
 

@@ -4,31 +4,18 @@ Pure functions of the arm's dynamics quantities, evaluated every physics substep
 All vectors are in the world frame; translation in meters, rotation in radians, force in newtons,
 torque in newton-meters. The task point is the end-effector (fingertip-centre) site.
 
-The paper's laws (Brown et al., eqs. pose_ctrl and hybrid_ctrl):
-
-    pose:   u = J^T M_x [k_p (x_d - x) - k_d xdot] + g(q)
-    hybrid: u = J^T M_x [Lambda (k_p (x_d - x) - k_d xdot) + (1 - Lambda) k_f (f_d - f_ee)] + g(q)
+    pose:   u = J^T [k_p (x_d - x) - k_d xdot] + g(q)                      (Factory, default)
+            u = J^T M_x [k_p (x_d - x) - k_d xdot] + g(q)                  (paper, use_task_inertia)
+    hybrid: position law on axes with Lambda = 1, on the others the task force
+            k_f (f_d - f_ee) + f_d - k_vf xdot  (feed-forward and damping: docs/controllers.md)
 
 with M_x = (J M^-1 J^T)^-1, Lambda the per-axis selection (1 = position control) on the three
 translational axes only (rotation is always pose-controlled), f_ee the force the robot applies to the
-environment. A dynamically consistent null-space term pulls the redundant 7th degree of freedom toward
-a posture. `use_task_inertia=False` gives IsaacLab Factory's variant (u = J^T [...] + g(q)).
-
-Force term (measured, see the README): taken literally, the paper's law multiplies the force error
-by M_x, and the FR3's M_x along z is ~10 kg at the insertion pose, so the force loop gain M_x k_f ~ 5
-against MuJoCo's stiff contact oscillates (+-35 N, 200 N peaks while commanding 5 N). By default the
-force term is therefore a task-space force, F = k_f (f_d - f_ee) + f_d (loop gain k_f = 0.5, and the
-feedforward f_d makes the commanded force the steady-state force). `force_through_task_inertia=True,
-force_feedforward=False, force_damping=(0, 0, 0)` restores the paper's literal law.
-
-Force-axis damping (measured, see the README): the paper's law has no velocity term on force axes, so
-in free space a force-selected axis accelerates without bound. Untrained hybrid policies select force
-~7 % of the time per axis, and with the fragile peg (10 N) and this arm's ~10 kg task inertia along z,
-29 % of the initial MATCH policy's episodes broke the peg (vs 1 % for Pose), which taught MATCH to
-hover above the hole. Khatib's unified hybrid formulation damps the force subspace too
-(-M_x k_vf xdot); with k_vf = 20 /s (the pose law's k_d) the initial break rate fell to 8 %. It adds no
-force at rest, so steady-state contact forces are unchanged, and free-space force selection still
-drives the arm (terminal speed |F| / (M_x k_vf), e.g. 37 mm/s for 7.5 N along z).
+environment. On Factory's law k_p is a stiffness at the end effector (N/m, N m/rad) and k_d a damping
+(N s/m); on the paper's law both are per unit task inertia. A dynamically consistent null-space term
+pulls the redundant 7th degree of freedom toward a posture. `force_through_task_inertia=True,
+force_feedforward=False, force_damping=(0, 0, 0)` with `use_task_inertia=True` is the paper's literal
+hybrid law.
 """
 
 from __future__ import annotations
@@ -41,21 +28,21 @@ import jax.numpy as jnp
 
 @dataclasses.dataclass(frozen=True)
 class ControllerConfig:
-    """Gains of the operational-space controller (paper / Factory values by default).
+    """Gains of the operational-space controller (IsaacLab Factory's law and gains by default).
 
     Attributes:
-      pos_stiffness: k_p for x, y, z (1/s^2 when multiplied by M_x; "N/m per kg").
-      rot_stiffness: k_p for rotation about x, y, z.
+      pos_stiffness: k_p for x, y, z (N/m on Factory's law; 1/s^2, i.e. N/m per kg, through M_x).
+      rot_stiffness: k_p for rotation about x, y, z (N m/rad; 1/s^2 through M_x).
       force_gain: k_f, proportional gain of the force law.
       force_feedforward: add f_d itself to the task force on force-controlled axes, so that the
         steady-state contact force equals f_d (without it: k_f / (1 + k_f) f_d).
       force_through_task_inertia: multiply the force term by M_x as the paper's equation is written
-        (unstable in contact with this arm, see the module docstring).
-      force_damping: k_vf per world axis x, y, z (1/s, through M_x like k_d): velocity damping -M_x k_vf xdot on the
-        force-controlled axes, as in Khatib's hybrid law; 0 gives the paper's undamped equation
-        (see the module docstring).
+        (unstable in contact with this arm: docs/controllers.md).
+      force_damping: k_vf per world axis x, y, z: velocity damping -k_vf xdot (N s/m; through M_x on the
+        paper's law, 1/s) on the force-controlled axes, as in Khatib's hybrid law; 0 gives the paper's
+        and the authors' undamped law.
       null_stiffness: joint-space stiffness of the posture term (1/s^2), damping is critical.
-      use_task_inertia: True: the paper's J^T M_x law; False: Factory's J^T law.
+      use_task_inertia: False: Factory's J^T law (default; the authors' code); True: the paper's J^T M_x.
       gravity_compensation: add the bias forces g(q) + Coriolis (MJX qfrc_bias).
       task_inertia_damping: Tikhonov term added to J M^-1 J^T before inverting (near singularities).
     """
