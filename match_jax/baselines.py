@@ -100,7 +100,6 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
         raise ValueError(f"the spiral baseline needs the 'hybrid' controller, got {env.action_space.name!r}")
     space, layout, acfg = env.action_space, env.policy_obs_layout, env.config.actions
     tip_below_ee, depth, dt = env.peg_tip_below_ee, env.hole_depth, env.dt
-    f_lo, f_hi = acfg.force_z_range
     kp = jnp.asarray(env.config.controller.pos_stiffness, jnp.float32)
     # A target held for one policy step dt, leading the end effector by L at the step's start, moves it
     # at v = L / (k_d / k_p + dt / 2) (the lead shrinks by v dt / 2 on average over the step).
@@ -108,8 +107,8 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
     ema = acfg.ema
     pos_idx = jnp.asarray(space.position)
 
-    def force_z_action(force_n):  # inverse of f_z = lo + (a + 1) / 2 (hi - lo), for a push of force_n
-        return -1.0 + 2.0 * (-force_n - f_lo) / (f_hi - f_lo)
+    def force_z_action(push_n):  # the force-z action pressing down with push_n newtons
+        return acfg.force_z_action(-push_n)
 
     def to_position_action(delta):
         return _position_action(delta, acfg.pos_scale, config.approach_gain)

@@ -209,8 +209,7 @@ def initial_mean_bias(config: PPOConfig, env) -> tuple[float, ...]:
     force_z = config.network.initial_force_z
     actions = getattr(getattr(env, "config", None), "actions", None)
     if space.force and force_z is not None and actions is not None:
-        lo, hi = actions.force_z_range
-        a = float(np.clip(-1.0 + 2.0 * (force_z - lo) / (hi - lo), -0.999, 0.999))
+        a = float(np.clip(actions.force_z_action(force_z), -0.999, 0.999))
         bias[space.continuous.index(space.force[2])] = float(np.arctanh(a))
     return tuple(bias)
 

@@ -190,3 +190,13 @@ def test_controller_config_rejects_bad_values():
         ControllerConfig(force_damping=(1.0, 1.0, -1.0))
     with pytest.raises(ValueError, match="pos_stiffness"):
         ControllerConfig(pos_stiffness=(1.0, 2.0))
+
+
+def test_action_config_force_z_and_its_inverse():
+    from match_jax.controllers import ActionConfig
+
+    actions = ActionConfig()
+    for a in (-1.0, -0.3, 0.0, 1.0):
+        assert actions.force_z_action(actions.force_z(a)) == pytest.approx(a)
+    assert actions.force_z(1.0) == 0.0 and actions.force_z(-1.0) == -20.0  # (-20, 0) N
+    assert actions.stiffness(-1.0) == 0.0 and actions.stiffness(1.0) == 200.0

@@ -45,6 +45,21 @@ class ActionConfig:
         if not 0 <= lo < hi:
             raise ValueError(f"ActionConfig.stiffness_range must be 0 <= low < high, got {self.stiffness_range!r}")
 
+    def force_z(self, a):
+        """Force-z target (N, robot on environment) of a force-z action component a in [-1, 1]."""
+        lo, hi = self.force_z_range
+        return lo + 0.5 * (a + 1.0) * (hi - lo)
+
+    def force_z_action(self, force_n):
+        """Inverse of `force_z`: the action component whose target is `force_n` N (F_z, < 0 presses)."""
+        lo, hi = self.force_z_range
+        return -1.0 + 2.0 * (force_n - lo) / (hi - lo)
+
+    def stiffness(self, a):
+        """VICES translational k_p of a stiffness action component a in [-1, 1]."""
+        lo, hi = self.stiffness_range
+        return lo + 0.5 * (a + 1.0) * (hi - lo)
+
 
 @dataclasses.dataclass(frozen=True)
 class ActionSpace:

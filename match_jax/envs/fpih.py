@@ -293,8 +293,7 @@ class FPiHEnv(BraxEnv):
         """The neutral action: zero, with the force-z target at 0 N (a = 1 maps to f_z_max = 0)."""
         action = jnp.zeros(self.action_size)
         if self.action_space.force:
-            lo, hi = self.config.actions.force_z_range
-            action = action.at[self.action_space.force[2]].set(-1.0 + 2.0 * (0.0 - lo) / (hi - lo))
+            action = action.at[self.action_space.force[2]].set(self.config.actions.force_z_action(0.0))
         return action
 
     def _inverse_kinematics(self, data: mjx.Data, pos: jax.Array, rot: jax.Array) -> mjx.Data:
@@ -427,14 +426,12 @@ class FPiHEnv(BraxEnv):
         yaw = _ee_yaw(ee_rot) + action[space.yaw[0]] * acfg.yaw_scale
         kp = jnp.asarray(cfg.controller.pos_stiffness, jnp.float32)
         if space.stiffness:
-            lo, hi = acfg.stiffness_range
-            kp = lo + 0.5 * (action[jnp.asarray(space.stiffness)] + 1.0) * (hi - lo)
+            kp = acfg.stiffness(action[jnp.asarray(space.stiffness)])
         force = jnp.zeros(3)
         position_axes = jnp.ones(3)
         if space.force:
             f = action[jnp.asarray(space.force)]
-            lo, hi = acfg.force_z_range
-            force = jnp.array([f[0] * acfg.force_xy_max, f[1] * acfg.force_xy_max, lo + 0.5 * (f[2] + 1.0) * (hi - lo)])
+            force = jnp.array([f[0] * acfg.force_xy_max, f[1] * acfg.force_xy_max, acfg.force_z(f[2])])
             position_axes = (action[jnp.asarray(space.selection)] <= acfg.selection_threshold).astype(jnp.float32)
         return ControlTarget(pos=pos, rot=_down_rotation(yaw), force=force, position_axes=position_axes,
                              pos_stiffness=kp, posture=info["posture"])
