@@ -186,6 +186,9 @@ def render_episode(args) -> None:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    from match_jax import compile_cache
+
+    compile_cache.enable()
     if args.render:
         choose_gl_backend()
     start = time.time()

@@ -123,6 +123,9 @@ def build_spec(args: argparse.Namespace):
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    from match_jax import compile_cache
+
+    compile_cache.enable()
     from match_jax.checkpoints import CheckpointError
     from match_jax.training import RunError, train
 

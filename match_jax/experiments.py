@@ -28,7 +28,7 @@ import match_jax  # noqa: F401  (fast XLA CPU flag)
 
 import numpy as np
 
-from match_jax import checkpoints, plots
+from match_jax import checkpoints, compile_cache, plots
 from match_jax.envs import FPiHConfig
 from match_jax.presets import get_preset
 from match_jax.run_eval import evaluate_run_grid
@@ -306,6 +306,7 @@ def parse_args(argv=None) -> SuiteConfig:
 
 def main(argv=None) -> int:
     cfg = parse_args(argv)
+    compile_cache.enable()
     cfg.out.mkdir(parents=True, exist_ok=True)
     command = "python -m match_jax.experiments " + " ".join(sys.argv[1:] if argv is None else argv)
     train_all(cfg)

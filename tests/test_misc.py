@@ -49,3 +49,13 @@ def test_eval_cli_rejects_bad_input(argv, message, capsys):
     with pytest.raises(SystemExit):
         eval_cli.parse_args(argv)
     assert message in capsys.readouterr().err
+
+
+def test_compilation_cache_directory_choice(tmp_path):
+    from match_jax import compile_cache
+
+    assert compile_cache.cache_dir({"XDG_CACHE_HOME": str(tmp_path)}) == tmp_path / "match_jax" / "jax"
+    assert compile_cache.cache_dir({"JAX_COMPILATION_CACHE_DIR": "/x/y"}) == compile_cache.pathlib.Path("/x/y")
+    for off in ("0", "false", "off"):
+        assert compile_cache.cache_dir({"MATCH_JAX_COMPILATION_CACHE": off}) is None
+        assert compile_cache.enable({"MATCH_JAX_COMPILATION_CACHE": off}) is None
