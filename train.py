@@ -47,7 +47,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="the actor's initial pre-tanh log std (default: the preset's, docs/training.md)")
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
-    parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10)")
+    parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10; inf = unbreakable)")
+    parser.add_argument("--break-sampling", choices=["peak", "policy_step"], default="peak",
+                        help="break on the peak force over every physics step (default) or on the force read once "
+                             "per policy step (the authors' code)")
     parser.add_argument("--controller", choices=["paper", "factory"], default="factory",
                         help="task-space law: IsaacLab Factory's u = J^T F as the authors' code runs it (default; "
                              "k_p = 100 N/m at the end effector) or the paper's equation u = J^T M_x F "
@@ -114,6 +117,7 @@ def build_spec(args: argparse.Namespace):
         env = dataclasses.replace(env, hole_obs_noise=args.hole_noise_mm / 1000.0)
     if args.break_force is not None:
         env = dataclasses.replace(env, break_force=args.break_force)
+    env = dataclasses.replace(env, break_sampling=args.break_sampling)
     controller = dataclasses.replace(env.controller, use_task_inertia=args.controller == "paper")
     if args.force_law == "literal":
         controller = dataclasses.replace(controller, force_feedforward=False, force_damping=(0.0, 0.0, 0.0))

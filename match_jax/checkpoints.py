@@ -12,6 +12,7 @@ mid-save leaves the previous checkpoint intact.
 from __future__ import annotations
 
 import json
+import logging
 import pathlib
 
 import jax
@@ -21,6 +22,17 @@ import orbax.checkpoint as ocp
 
 class CheckpointError(RuntimeError):
     """A checkpoint directory is missing, empty or unreadable (one-line message)."""
+
+
+class _ReadOnlyNotices(logging.Filter):
+    """Drops orbax's notices that a read-only manager ignores its write options (several per read)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        return not ("read_only=True" in message or "directory is read only" in message)
+
+
+logging.getLogger("absl").addFilter(_ReadOnlyNotices())
 
 
 def _manager(directory: pathlib.Path, read_only: bool = False) -> ocp.CheckpointManager:

@@ -242,3 +242,7 @@ def test_train_cli_controller_and_force_law_flags(tmp_path):
         ["--method", "match", "--controller", "paper", "--force-law", "literal", "--out", str(tmp_path)]))
     c = spec.env.controller
     assert c.use_task_inertia and not c.force_feedforward and c.force_damping == (0.0, 0.0, 0.0)
+    assert spec.env.break_sampling == "peak"
+    spec = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "pose", "--break-sampling", "policy_step", "--out", str(tmp_path)]))
+    assert spec.env.break_sampling == "policy_step"
