@@ -20,6 +20,7 @@ contact label of the state that produced the action.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any, NamedTuple
 
 import jax
@@ -30,6 +31,7 @@ from brax.training.acme import running_statistics
 from brax.training.acme import specs
 
 from match_jax.distributions import METHODS, METHOD_CONTROL, Sample, make_distribution
+from match_jax.losses import ppo_loss, selection_loss  # noqa: F401  (selection_loss: public here too)
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
 from match_jax.networks import Actor, Critic, NetworkConfig
 
@@ -161,21 +163,6 @@ class Trainer(NamedTuple):
     train_chunk: Any  # TrainState -> (TrainState, metrics (iterations_per_chunk, num_seeds))
     policy_head: Any  # (params, policy_stats, obs['state']) -> PolicyHead
     distribution: Any
-
-
-def selection_loss(logits: jax.Array, contact_label: jax.Array, contact_only: bool = False) -> jax.Array:
-    """Supervised selection loss (before beta): mean over axes and batch of BCE(p_force, psi).
-
-    The axis mean is the paper's form; beta times this equals (beta / 3) times the axis sum.
-
-    logits: (..., 3) selection logits (log-odds of force control); contact_label: (..., 3) 0/1 per axis.
-    contact_only: average over the samples with at least one axis in contact only (0 if there are none).
-    """
-    per_sample = optax.sigmoid_binary_cross_entropy(logits, contact_label).mean(-1)
-    if not contact_only:
-        return per_sample.mean()
-    weight = contact_label.max(-1)
-    return (per_sample * weight).sum() / jnp.maximum(weight.sum(), 1.0)
 
 
 def generalized_advantages(reward, value, final_value, last_value, done, truncation, gamma: float,
@@ -363,41 +350,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
                                       config.gamma, config.gae_lambda)
 
     # ------------------------------------------------------------------------------- update
-    def loss_fn(params, batch: Transition, adv, returns):
-        head = actor.apply(params["actor"], batch.policy_obs)
-        log_prob = dist.log_prob(batch.sample, head)
-        log_ratio = log_prob - batch.log_prob
-        ratio = jnp.exp(log_ratio)
-        if config.normalize_advantages:
-            adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-        pg_loss = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - config.clip_eps, 1 + config.clip_eps) * adv).mean()
-        values = critic.apply(params["critic"], batch.critic_obs)
-        value_loss = 0.5 * jnp.mean((values - returns) ** 2)
-        entropy = dist.entropy(head).mean()
-        total = pg_loss + config.value_coef * value_loss - config.entropy_coef * entropy
-        ssl_loss = jnp.zeros(())
-        p_force = jnp.zeros(())
-        contact_stats = {}
-        if dist.num_selections:
-            ssl_loss = selection_loss(head.logits, batch.contact_label, config.ssl_samples == "contact")
-            p_axes = jax.nn.sigmoid(head.logits).mean(-1)
-            p_force = p_axes.mean()
-            in_contact = batch.contact_label.max(-1)
-            contact_stats = {"_p_force_contact_sum": (p_axes * in_contact).sum(), "_contact_count": in_contact.sum()}
-            if config.uses_ssl and config.ssl_phase == "joint":
-                total = total + config.ssl_beta * ssl_loss
-        metrics = {
-            "loss": total,
-            "policy_loss": pg_loss,
-            "value_loss": value_loss,
-            "entropy": entropy,
-            "ssl_loss": ssl_loss,
-            "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),
-            "clip_fraction": jnp.mean(jnp.abs(ratio - 1.0) > config.clip_eps),
-            "p_force": p_force,
-            **contact_stats,
-        }
-        return total, metrics
+    loss_fn = functools.partial(ppo_loss, actor=actor, critic=critic, dist=dist, config=config)
 
     def update(params, opt_state, traj: Transition, adv, returns, key):
         n = config.steps_per_iteration

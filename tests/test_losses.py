@@ -1,0 +1,67 @@
+"""The PPO loss against hand computation: ratio 1 leaves only the value loss, clipping caps the gain,
+and the selection loss enters with beta for hybrid policies."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from match_jax.distributions import make_distribution
+from match_jax.losses import ppo_loss, selection_loss
+from match_jax.networks import Actor, Critic, NetworkConfig
+from match_jax.ppo import PPOConfig, Transition
+
+N, OBS, CRITIC_OBS = 16, 5, 7
+
+
+@pytest.fixture(scope="module")
+def setup():
+    config = PPOConfig(method="match", network=NetworkConfig(actor_hidden=16, actor_blocks=1, critic_hidden=16,
+                                                             critic_blocks=1))
+    dist = make_distribution("match")
+    actor, critic = Actor(dist.num_continuous, dist.num_selections, config.network), Critic(config.network)
+    k = jax.random.split(jax.random.PRNGKey(0), 6)
+    obs, cobs = jax.random.normal(k[0], (N, OBS)), jax.random.normal(k[1], (N, CRITIC_OBS))
+    params = {"actor": actor.init(k[2], obs), "critic": critic.init(k[3], cobs)}
+    head = actor.apply(params["actor"], obs)
+    sample = jax.vmap(dist.sample)(jax.random.split(k[4], N), head)
+    labels = (jax.random.uniform(k[5], (N, 3)) > 0.7).astype(jnp.float32)
+    batch = Transition(policy_obs=obs, critic_obs=cobs, final_critic_obs=cobs, sample=sample,
+                       log_prob=dist.log_prob(sample, head), reward=jnp.zeros(N), done=jnp.zeros(N),
+                       truncation=jnp.zeros(N), contact_label=labels)
+    kw = dict(actor=actor, critic=critic, dist=dist)
+    return config, params, batch, kw, head
+
+
+def test_ratio_one_leaves_value_and_selection_losses(setup):
+    config, params, batch, kw, head = setup
+    adv, returns = jnp.linspace(-1.0, 2.0, N), jnp.linspace(0.0, 3.0, N)
+    total, m = ppo_loss(params, batch, adv, returns, config=config, **kw)
+    values = kw["critic"].apply(params["critic"], batch.critic_obs)
+    value_loss = 0.5 * np.mean((np.asarray(values) - np.asarray(returns)) ** 2)
+    ssl = float(selection_loss(head.logits, batch.contact_label))
+    assert float(m["policy_loss"]) == pytest.approx(0.0, abs=1e-6)  # normalised advantages average 0
+    assert float(m["approx_kl"]) == pytest.approx(0.0, abs=1e-6) and float(m["clip_fraction"]) == 0.0
+    assert float(m["value_loss"]) == pytest.approx(value_loss, rel=1e-5)
+    assert float(m["ssl_loss"]) == pytest.approx(ssl, rel=1e-5)
+    expected = value_loss * config.value_coef - config.entropy_coef * float(m["entropy"]) + config.ssl_beta * ssl
+    assert float(total) == pytest.approx(expected, rel=1e-5)
+    no_ssl = dataclasses.replace(config, ssl_coef=0.0)
+    total0, _ = ppo_loss(params, batch, adv, returns, config=no_ssl, **kw)
+    assert float(total) - float(total0) == pytest.approx(config.ssl_beta * ssl, rel=1e-4)
+
+
+def test_clipping_caps_the_surrogate(setup):
+    """Old log-probs 1 nat below the new ones: ratio e > 1 + clip, so positive advantages gain only
+    (1 + clip) A and negative ones pay the full e A."""
+    config, params, batch, kw, _ = setup
+    shifted = batch._replace(log_prob=batch.log_prob - 1.0)
+    adv = jnp.where(jnp.arange(N) % 2 == 0, 1.0, -1.0)
+    unnormalised = dataclasses.replace(config, normalize_advantages=False)
+    _, m = ppo_loss(params, shifted, adv, jnp.zeros(N), config=unnormalised, **kw)
+    ratio, clip = np.e, config.clip_eps
+    expected = -np.mean(np.where(np.asarray(adv) > 0, (1 + clip) * 1.0, ratio * -1.0))
+    assert float(m["policy_loss"]) == pytest.approx(expected, rel=1e-4)
+    assert float(m["clip_fraction"]) == 1.0
