@@ -29,8 +29,8 @@ def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config):
     params: {'actor', 'critic'}; batch: a `ppo.Transition` minibatch (normalised observations, the
     rollout's latent samples and their log-probs, contact labels); adv, returns: (N,) from GAE.
     actor / critic: the Flax modules; dist: the method's action distribution; config: `PPOConfig`.
-    Returns (total loss, metrics); the metrics' `_p_force_contact_sum` and `_contact_count` are sums
-    the trainer turns into p_force on in-contact samples.
+    Returns (total loss, metrics); the metrics whose names start with "_" are sums and counts the
+    trainer turns into p_force on in-contact / free-space samples and axes.
     """
     head = actor.apply(params["actor"], batch.policy_obs)
     log_prob = dist.log_prob(batch.sample, head)
@@ -51,7 +51,10 @@ def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config):
         p_axes = jax.nn.sigmoid(head.logits).mean(-1)
         p_force = p_axes.mean()
         in_contact = batch.contact_label.max(-1)
-        contact_stats = {"_p_force_contact_sum": (p_axes * in_contact).sum(), "_contact_count": in_contact.sum()}
+        p_each = jax.nn.sigmoid(head.logits)  # (N, 3)
+        contact_stats = {"_p_force_contact_sum": (p_axes * in_contact).sum(), "_contact_count": in_contact.sum(),
+                         "_p_force_axis_contact_sum": (p_each * batch.contact_label).sum(),
+                         "_axis_contact_count": batch.contact_label.sum()}
         if config.uses_ssl and config.ssl_phase == "joint":
             total = total + config.ssl_beta * ssl_loss
     metrics = {

@@ -37,7 +37,7 @@ from match_jax.ppo import PPOConfig, Trainer, TrainState, make_env, make_trainer
 
 LOGGED = ("iteration", "env_steps", "success_rate", "break_rate", "episodes", "mean_reward", "contact_fraction",
           "loss", "policy_loss", "value_loss", "ssl_loss", "entropy", "approx_kl", "clip_fraction", "p_force",
-          "action_std", "p_force_contact", "p_force_free")
+          "action_std", "p_force_contact", "p_force_free", "p_force_contact_axis", "p_force_free_axis")
 
 
 class RunError(ValueError):

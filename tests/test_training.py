@@ -61,6 +61,9 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypat
     # the resolved config, a CSV and a best policy per seed are beside the checkpoints
     assert RunSpec.from_json((straight / "config.json").read_text()) == spec
     assert (straight / "metrics.csv").read_text().count("\n") == 5
+    rows = [json.loads(line) for line in (straight / "metrics.jsonl").read_text().splitlines()]
+    for row in rows:  # p(force) per axis on free-space axes: ~0.07 at initialisation
+        assert 0.0 < row["p_force_free_axis"] < 0.2 and "p_force_contact_axis" in row
     for seed in range(2):
         record = checkpoints.read_best_record(straight, seed)
         assert record is not None and record["iteration"] in (1, 2)
