@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from match_jax.envs.fpih import BREAK_SAMPLINGS
+from match_jax.envs.fpih import break_signal
 
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
@@ -65,25 +65,17 @@ def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_poli
     return rollout
 
 
-def break_signal(traj: dict, sampling: str = "peak") -> np.ndarray:
-    """The force (N) compared with the break threshold on each step, as `FPiHConfig.break_sampling` says:
-    'peak': max |F| over the step's physics steps; 'policy_step': |F| read once, at the end of the step."""
-    if sampling == "peak":
-        return np.asarray(traj["max_force"])
-    if sampling == "policy_step":
-        return np.linalg.norm(np.asarray(traj["ee_force"]), axis=-1)
-    raise ValueError(f"break sampling must be one of {BREAK_SAMPLINGS}, got {sampling!r}")
-
-
 def apply_break_threshold(traj: dict, break_force: float, sampling: str = "peak") -> dict:
     """The trajectory a peg that breaks at `break_force` N would have had, from an unbreakable rollout.
 
-    Breaking only ends the episode, so up to the first step whose break signal (`break_signal`)
-    reaches the threshold the two rollouts are identical; later steps are marked `done_before`.
+    Breaking only ends the episode, so up to the first step whose break signal (`fpih.break_signal`,
+    the env's own check) reaches the threshold the two rollouts are identical; later steps are marked
+    `done_before`.
     """
     traj = {k: np.asarray(v) for k, v in traj.items()}
     alive = 1.0 - traj["done_before"]
-    broken = ((break_signal(traj, sampling) >= break_force) & (alive > 0)).astype(np.float32)
+    signal = np.asarray(break_signal(sampling, traj["max_force"], traj["ee_force"]))
+    broken = ((signal >= break_force) & (alive > 0)).astype(np.float32)
     ended = np.maximum(broken, traj["done"] * alive)
     done_before = np.zeros_like(alive)
     done_before[1:] = np.maximum.accumulate(ended, axis=0)[:-1]

@@ -398,7 +398,8 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
             metrics["p_force_free"] = jnp.where(free > 0, free_sum / jnp.maximum(free, 1.0), jnp.nan)
             # per axis: sum_i p_i psi_i / sum_i psi_i over samples and axes (the paper's per-axis figure)
             axis_contact, axis_sum = metrics.pop("_axis_contact_count"), metrics.pop("_p_force_axis_contact_sum")
-            axis_free, axis_free_sum = 3 * size - axis_contact, 3 * metrics["p_force"] * size - axis_sum
+            axes = dist.num_selections
+            axis_free, axis_free_sum = axes * size - axis_contact, axes * metrics["p_force"] * size - axis_sum
             metrics["p_force_contact_axis"] = jnp.where(axis_contact > 0, axis_sum / jnp.maximum(axis_contact, 1.0),
                                                         jnp.nan)
             metrics["p_force_free_axis"] = jnp.where(axis_free > 0, axis_free_sum / jnp.maximum(axis_free, 1.0),

@@ -25,8 +25,9 @@ from match_jax.envs.fpih import BREAK_SAMPLINGS
 from match_jax.ppo import deterministic_action
 from match_jax.training import RunError, batch_mesh, load_policies, load_spec, shard_batch
 
-COLUMNS = ("success_rate", "break_rate", "mean_time_to_success_s", "mean_force_n", "force_selected_contact",
-           "force_selected_free", "force_selected_contact_per_axis", "force_selected_free_per_axis",
+SELECTION_COLUMNS = ("force_selected_contact", "force_selected_free", "force_selected_contact_per_axis",
+                     "force_selected_free_per_axis")
+COLUMNS = ("success_rate", "break_rate", "mean_time_to_success_s", "mean_force_n", *SELECTION_COLUMNS,
            "break_rate_peak", "break_rate_policy_step")
 AXIS_COLUMNS = tuple(f"force_selected_{where}_{axis}" for where in ("contact", "free") for axis in "xyz")
 
@@ -100,19 +101,18 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
             per_seed, seed_trajs = [], []
             for i in range(spec.num_seeds):
                 unbroken = {k: v[i, li] for k, v in traj.items()}
-                seed_traj, break_rates = unbroken, {}
-                for sampling in BREAK_SAMPLINGS:  # both samplings on the same episodes
-                    broken = evaluation.apply_break_threshold(unbroken, force, sampling) if math.isfinite(force) \
-                        else unbroken
-                    break_rates[f"break_rate_{sampling}"] = evaluation.summarize(
-                        evaluation.episode_metrics(broken, env.dt))["break_rate"]
-                    if sampling == spec.env.break_sampling:
-                        seed_traj = broken
+                by_sampling = {}  # both samplings on the same episodes; the run's own one is the summary
+                for sampling in BREAK_SAMPLINGS if math.isfinite(force) else (spec.env.break_sampling,):
+                    broken = evaluation.apply_break_threshold(unbroken, force, sampling) \
+                        if math.isfinite(force) else unbroken
+                    by_sampling[sampling] = (broken, evaluation.summarize(evaluation.episode_metrics(broken, env.dt)))
+                seed_traj, summary = by_sampling[spec.env.break_sampling]
                 seed_trajs.append(seed_traj)
-                summary = evaluation.summarize(evaluation.episode_metrics(seed_traj, env.dt))
-                summary.update(break_rates, seed=spec.seed + i)
+                for s in BREAK_SAMPLINGS:  # unbreakable: one rollout, no break under either sampling
+                    summary[f"break_rate_{s}"] = (by_sampling[s][1] if s in by_sampling else summary)["break_rate"]
+                summary["seed"] = spec.seed + i
                 if not hybrid:  # no selection: the force-selection columns do not apply
-                    for column in ("force_selected_contact", "force_selected_free") + COLUMNS[6:8] + AXIS_COLUMNS:
+                    for column in SELECTION_COLUMNS + AXIS_COLUMNS:
                         summary[column] = float("nan")
                 else:
                     summary.update(analysis.contact_selection_rates(

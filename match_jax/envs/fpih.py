@@ -109,6 +109,17 @@ class FPiHConfig:
         return self.control_dt * self.control_substeps
 
 
+def break_signal(sampling: str, max_force, ee_force):
+    """The force (N) compared with the break threshold, as `FPiHConfig.break_sampling` says: 'peak' = the
+    max |F| over a policy step's physics steps (`max_force`); 'policy_step' = |F| of the reading at its
+    end (`ee_force`, (..., 3)). Works on one step or on a recorded (T, B) trajectory."""
+    if sampling == "peak":
+        return max_force
+    if sampling == "policy_step":
+        return jnp.linalg.norm(ee_force, axis=-1)
+    raise ValueError(f"break_sampling must be one of {BREAK_SAMPLINGS}, got {sampling!r}")
+
+
 def _yaw_rotation(yaw: jax.Array) -> jax.Array:
     c, s = jnp.cos(yaw), jnp.sin(yaw)
     return jnp.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
@@ -334,8 +345,7 @@ class FPiHEnv(BraxEnv):
         height = tip[2] - hole_pos[2]
         success = ((lateral < cfg.success_radius) & (height < cfg.success_height)).astype(jnp.float32)
         engaged = ((lateral < cfg.success_radius) & (height < cfg.engage_height)).astype(jnp.float32)
-        break_signal = max_force if cfg.break_sampling == "peak" else jnp.linalg.norm(ee_force)
-        broken = (break_signal >= cfg.break_force).astype(jnp.float32)
+        broken = (break_signal(cfg.break_sampling, max_force, ee_force) >= cfg.break_force).astype(jnp.float32)
         contact_axes = (jnp.abs(ee_force) > cfg.contact_threshold).astype(jnp.float32)
         in_contact = (jnp.any(contact_axes > 0) | (max_force > cfg.contact_threshold)).astype(jnp.float32)
         had_contact = jnp.maximum(info["had_contact"], in_contact)
