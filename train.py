@@ -42,6 +42,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0, help="base random seed")
     parser.add_argument("--total-steps", type=int, default=None, help="env steps per seed (preset default)")
     parser.add_argument("--num-envs", type=int, default=None, help="parallel envs per seed (preset default)")
+    parser.add_argument("--rollout-steps", type=int, default=None, help="env steps per env per PPO iteration (preset default)")
+    parser.add_argument("--epochs", type=int, default=None, help="PPO epochs per iteration (preset default)")
+    parser.add_argument("--minibatches", type=int, default=None, help="minibatches per epoch (preset default)")
+    parser.add_argument("--iterations-per-chunk", type=int, default=None,
+                        help="PPO iterations per jitted call, between logs and checkpoints (preset default)")
     parser.add_argument("--learning-rate", type=float, default=None)
     parser.add_argument("--initial-log-std", type=float, default=None,
                         help="the actor's initial pre-tanh log std (default: the preset's, docs/training.md)")
@@ -67,7 +72,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if not args.resume and args.method is None:
         parser.error("--method is required (unless --resume)")
-    for name in ("seeds", "total_steps", "num_envs", "max_chunks"):
+    for name in ("seeds", "total_steps", "num_envs", "max_chunks", "rollout_steps", "epochs", "minibatches",
+                 "iterations_per_chunk"):
         value = getattr(args, name)
         if value is not None and value < 1:
             parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
@@ -96,7 +102,8 @@ def build_spec(args: argparse.Namespace):
     from match_jax.training import RunSpec
 
     overrides = {"method": args.method}
-    for name in ("total_steps", "num_envs", "learning_rate"):
+    for name in ("total_steps", "num_envs", "learning_rate", "rollout_steps", "epochs", "minibatches",
+                 "iterations_per_chunk"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     if args.no_ssl:

@@ -28,11 +28,11 @@ import match_jax  # noqa: F401  (fast XLA CPU flag)
 
 import numpy as np
 
-from match_jax import checkpoints, compile_cache, plots
+from match_jax import checkpoints, claims, compile_cache, plots
 from match_jax.envs import FPiHConfig
 from match_jax.presets import get_preset
 from match_jax.run_eval import evaluate_run_grid
-from match_jax.training import RunSpec, load_spec, read_metrics, train
+from match_jax.training import RunSpec, export_actors, load_spec, read_metrics, train
 
 # name -> (label, method, ssl on, training hole noise in mm, training break force in N; inf = unbreakable)
 SUITE = {
@@ -74,6 +74,7 @@ class SuiteConfig:
     time_budget_min: float | None = None  # per run and call: stop training after this much wall clock
     skip_training: bool = False  # evaluate and report the checkpoints that exist, train nothing
     train_only: bool = False  # train (or resume) the runs, evaluate and report nothing
+    export: pathlib.Path | None = None  # copy the report, evaluations and best actors here (`export_suite`)
 
 
 def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
@@ -143,16 +144,29 @@ def _table1_row(grid: list[dict]) -> dict:
     return next((r for r in gaussian if r["break_force_n"] is not None), gaussian[0])
 
 
-def _fmt(agg: dict, key: str, scale: float = 1.0, digits: int = 1) -> str:
-    if key not in agg:  # an evaluation written before this column existed
+def _fmt(row: dict, key: str, scale: float = 1.0, digits: int = 1) -> str:
+    """mean +- 95 % interval half-width over the seeds of an evaluation row ('-' where missing)."""
+    if key not in row["aggregate"]:  # an evaluation written before this column existed
         return "-"
-    mean, se = agg[key]["mean"], agg[key]["se"]
+    values = [s[key] for s in row["per_seed"] if s.get(key) is not None]
+    mean = row["aggregate"][key]["mean"]
     if mean is None or math.isnan(mean):
         return "-"
-    return f"{scale * mean:.{digits}f}" + ("" if se is None or math.isnan(se) else f" +- {scale * se:.{digits}f}")
+    half = claims.ci95_halfwidth(values)
+    return f"{scale * mean:.{digits}f}" + ("" if math.isnan(half) else f" +- {scale * half:.{digits}f}")
+
+
+def _row(grid: list[dict], noise_type: str, noise_mm: float | None, breakable: bool) -> dict | None:
+    for r in grid:
+        if r["noise_type"] == noise_type and (noise_mm is None or r["noise_mm"] == noise_mm) \
+                and (r["break_force_n"] is not None) == breakable:
+            return r
+    return None
 
 
 def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
+    """Per run name: training success (seeds x iterations), env steps per iteration, the smoothing
+    window (iterations spanning one episode per env) and the step budget."""
     curves = {}
     for name in cfg.only:
         rows = read_metrics(cfg.out / "runs" / name)
@@ -166,14 +180,52 @@ def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
             j = iterations.index(r["iteration"])
             rate[r["seed_index"], j] = np.nan if r["success_rate"] is None else r["success_rate"]
             steps[j] = r["env_steps"]
-        curves[SUITE[name][0]] = {"env_steps": steps, "success_rate": rate}
+        spec = run_spec(name, cfg)
+        curves[name] = {"env_steps": steps, "success_rate": rate, "budget": spec.ppo.total_steps,
+                        "window": math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps)}
     return curves
+
+
+STEPS_TO = (0.5, 0.8, 0.9)
+
+
+def steps_to(curve: dict, threshold: float) -> list[float]:
+    """Per seed: env steps to `threshold` training success (smoothed over one episode per env); NaN if never."""
+    return [claims.steps_to(curve["env_steps"], seed_rate, threshold, curve["window"])
+            for seed_rate in curve["success_rate"]]
+
+
+_CLAIM_METRICS = {"success": ("gaussian", None, True, "success_rate"), "break": ("gaussian", None, True, "break_rate"),
+                  "force": ("gaussian", None, True, "mean_force_n"),
+                  "force_contact": ("gaussian", None, True, "force_selected_contact_per_axis"),
+                  "force_free": ("gaussian", None, True, "force_selected_free_per_axis"),
+                  "success_7.5": ("uniform", 7.5, True, "success_rate"),
+                  "success_unbreakable_7.5": ("uniform", 7.5, False, "success_rate")}
+
+
+def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict]) -> list[claims.Claim]:
+    """The paper's qualitative claims on this suite's per-seed evaluations and learning curves."""
+    def values(name, metric):
+        if name not in results:
+            return []
+        noise_type, noise_mm, breakable, key = _CLAIM_METRICS[metric]
+        row = _table1_row(results[name]) if noise_type == "gaussian" else _row(results[name], noise_type, noise_mm,
+                                                                               breakable and not unbreakable(name))
+        return [] if row is None else [s.get(key) for s in row["per_seed"]]
+
+    def steps(name, threshold):
+        if name not in curves:
+            return []
+        return [curves[name]["budget"] if math.isnan(x) else x for x in steps_to(curves[name], threshold)]
+
+    return claims.check_claims(values, steps)
 
 
 def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str) -> pathlib.Path:
     out = cfg.out
     curves = learning_curves(cfg)
-    plots.learning_curves(curves, out / "learning_curves.png", smooth=1 if cfg.smoke else 5)
+    plots.learning_curves({SUITE[n][0]: c for n, c in curves.items()}, out / "learning_curves.png",
+                          smooth=1 if cfg.smoke else 5)
     plots.noise_robustness({SUITE[n][0]: [r for r in g if r["noise_type"] == "uniform"] for n, g in results.items()},
                            out / "noise_robustness.png")
     profiles = {SUITE[n][0]: _table1_row(g)["selection_profile"] for n, g in results.items() if n in HYBRID}
@@ -191,7 +243,7 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
            "left out of the PPO ratio (authors' code; selection trained by the SSL only); MATCH (no SSL) keeps it "
            "in the ratio, its selection's only training signal.")
         + (" **Smoke run: tiny sizes, the numbers mean nothing.**" if cfg.smoke else ""), "",
-        "## Table 1 analogue (mean +- SE over seeds; 10 N break)", "",
+        "## Table 1 analogue (mean +- 95 % interval over seeds; 10 N break)", "",
         "Break % counts a break when the peak contact force over a policy step's physics steps reaches 10 N (the "
         "default); the 15 Hz column reads the force once per policy step, as the authors' code does, on the same "
         "episodes.", "",
@@ -201,11 +253,11 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     ]
     breakable = {n: g for n, g in results.items() if not unbreakable(n)}
     for name, grid in breakable.items():
-        agg = _table1_row(grid)["aggregate"]
+        row = _table1_row(grid)
         paper = PAPER_TABLE1.get(name)
-        lines.append(f"| {SUITE[name][0]} | {_fmt(agg, 'success_rate', 100)} | {_fmt(agg, 'break_rate', 100)} | "
-                     f"{_fmt(agg, 'break_rate_policy_step', 100)} | "
-                     f"{_fmt(agg, 'mean_time_to_success_s', 1, 2)} | {_fmt(agg, 'mean_force_n', 1, 2)} | "
+        lines.append(f"| {SUITE[name][0]} | {_fmt(row, 'success_rate', 100)} | {_fmt(row, 'break_rate', 100)} | "
+                     f"{_fmt(row, 'break_rate_policy_step', 100)} | "
+                     f"{_fmt(row, 'mean_time_to_success_s', 1, 2)} | {_fmt(row, 'mean_force_n', 1, 2)} | "
                      f"{paper[0] if paper else '-'} | {paper[1] if paper else '-'} |")
     lines += ["", "## Noise robustness (uniform hole-position noise; success % / break %)", "",
               "| method | " + " | ".join(f"+-{x:g} mm" for x in SWEEP_MM) + " | unbreakable: " +
@@ -216,18 +268,17 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
         for x in SWEEP_MM:
             for r in grid:
                 if r["noise_type"] == "uniform" and r["noise_mm"] == x:
-                    a = r["aggregate"]
                     if r["break_force_n"] is None:
-                        cells_unb.append(_fmt(a, "success_rate", 100))
+                        cells_unb.append(_fmt(r, "success_rate", 100))
                     else:
-                        cells.append(f"{_fmt(a, 'success_rate', 100)} / {_fmt(a, 'break_rate', 100)}")
+                        cells.append(f"{_fmt(r, 'success_rate', 100)} / {_fmt(r, 'break_rate', 100)}")
         lines.append(f"| {SUITE[name][0]} | " + " | ".join(cells) + " | " + " | ".join(cells_unb) + " |")
     if any(unbreakable(n) for n in results):
         lines += ["", "## Unbreakable pegs (uniform hole-position noise; success %, evaluated unbreakable)", "",
                   "| method | trained | " + " | ".join(f"+-{x:g} mm" for x in SWEEP_MM) + " |",
                   "|---|---|" + "---|" * len(SWEEP_MM)]
         for name, grid in results.items():
-            cells = [_fmt(r["aggregate"], "success_rate", 100) for x in SWEEP_MM for r in grid
+            cells = [_fmt(r, "success_rate", 100) for x in SWEEP_MM for r in grid
                      if r["noise_type"] == "uniform" and r["noise_mm"] == x and r["break_force_n"] is None]
             trained = "unbreakable" if unbreakable(name) else f"{SUITE[name][4]:g} N"
             lines.append(f"| {SUITE[name][0]} | {trained} | " + " | ".join(cells) + " |")
@@ -241,24 +292,61 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
               "| P(force) contact % | P(force) free % | paper (MATCH) |", "|---|---|---|---|---|---|---|---|"]
     for name, grid in results.items():
         if name in HYBRID:
-            agg = _table1_row(grid)["aggregate"]
-            xyz = {w: " / ".join(_fmt(agg, f"force_selected_{w}_{a}", 100, 0) for a in "xyz") for w in ("contact", "free")}
-            lines.append(f"| {SUITE[name][0]} | {_fmt(agg, 'force_selected_contact_per_axis', 100)} | {xyz['contact']} "
-                         f"| {_fmt(agg, 'force_selected_free_per_axis', 100)} | {xyz['free']} "
-                         f"| {_fmt(agg, 'p_force_contact', 100)} | {_fmt(agg, 'p_force_free', 100)} "
+            row = _table1_row(grid)
+            xyz = {w: " / ".join(_fmt(row, f"force_selected_{w}_{a}", 100, 0) for a in "xyz") for w in ("contact", "free")}
+            lines.append(f"| {SUITE[name][0]} | {_fmt(row, 'force_selected_contact_per_axis', 100)} | {xyz['contact']} "
+                         f"| {_fmt(row, 'force_selected_free_per_axis', 100)} | {xyz['free']} "
+                         f"| {_fmt(row, 'p_force_contact', 100)} | {_fmt(row, 'p_force_free', 100)} "
                          f"| {'84 +- 10.8 / 2.9 +- 2.1' if name == 'match' else ''} |")
-    lines += ["", "## Learning (training success rate of the last 5 iterations, mean over seeds)", "",
-              "| method | env steps per seed | final success % | best iteration success % |", "|---|---|---|---|"]
-    for label, c in curves.items():
+    lines += ["", "## Learning speed (training success, smoothed over one episode per env; mean +- 95 % interval "
+              "over the seeds that reached it)", "",
+              "| method | env steps per seed | " + " | ".join(f"steps to {100 * t:g} %" for t in STEPS_TO)
+              + " | final success % | best success % |", "|---|---|" + "---|" * len(STEPS_TO) + "---|---|"]
+    for name, c in curves.items():
         rate = c["success_rate"]
-        tail = np.nanmean(rate[:, -5:]) if rate.size else float("nan")
-        lines.append(f"| {label} | {int(c['env_steps'][-1]):,} | {100 * tail:.1f} | {100 * np.nanmax(rate):.1f} |")
+        cells = []
+        for t in STEPS_TO:
+            reached = [x for x in steps_to(c, t) if not math.isnan(x)]
+            if not reached:
+                cells.append(f"not reached (0/{len(rate)})")
+                continue
+            half = claims.ci95_halfwidth(reached)
+            cells.append(f"{np.mean(reached) / 1e6:.2f}M" + ("" if math.isnan(half) else f" +- {half / 1e6:.2f}M")
+                         + ("" if len(reached) == len(rate) else f" ({len(reached)}/{len(rate)} seeds)"))
+        tail = np.nanmean(rate[:, -c["window"]:]) if rate.size else float("nan")
+        lines.append(f"| {SUITE[name][0]} | {int(c['env_steps'][-1]):,} | " + " | ".join(cells)
+                     + f" | {100 * tail:.1f} | {100 * np.nanmax(rate):.1f} |")
+    lines += ["", "## The paper's claims at this suite's seeds", "",
+              "A claim holds when the 95 % interval (Welch) of the difference of the seeds' means lies on its side "
+              "of 0, does not hold when it lies on the other side, and is inconclusive otherwise; 'as fast as' "
+              f"holds when not significantly slower and within {100 * claims.AS_FAST_MARGIN:g} % in mean. A seed "
+              "that never reached 80 % counts at the run's budget.", "",
+              "| claim | verdict | ours |", "|---|---|---|"]
+    lines += [f"| {c.text} | {c.verdict} | {c.numbers} |" for c in suite_claims(results, curves)]
     lines += ["", "## Figures", "", "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
               "- `noise_robustness.png`: success and break rate vs uniform noise, breakable and unbreakable",
               "- `selection_profile.png`: P(force) per axis over approach / contact / insertion (time-normalised)", ""]
     path = out / "REPORT.md"
     path.write_text("\n".join(lines))
     return path
+
+
+def export_suite(cfg: SuiteConfig, dest: pathlib.Path, log=print) -> pathlib.Path:
+    """Copy what the suite shows to `dest` (e.g. a results folder under version control): REPORT.md, the
+    figures, eval/*.json, and per run its config, metrics and best actors (`training.export_actors`: no
+    critic, no optimizer state), so `python eval.py DEST/runs/<name>` evaluates the shipped policies."""
+    dest.mkdir(parents=True, exist_ok=True)
+    for path in [cfg.out / "REPORT.md", *sorted(cfg.out.glob("*.png"))]:
+        if path.exists():
+            (dest / path.name).write_bytes(path.read_bytes())
+    for path in sorted((cfg.out / "eval").glob("*.json")):
+        (dest / "eval").mkdir(exist_ok=True)
+        (dest / "eval" / path.name).write_bytes(path.read_bytes())
+    for name in cfg.only:
+        if checkpoints.read_best_record(cfg.out / "runs" / name, 0) is not None:
+            export_actors(cfg.out / "runs" / name, dest / "runs" / name)
+    log(f"[export] {dest}")
+    return dest
 
 
 def parse_args(argv=None) -> SuiteConfig:
@@ -277,6 +365,9 @@ def parse_args(argv=None) -> SuiteConfig:
     parser.add_argument("--train-only", action="store_true",
                         help="train (or resume) the runs; no evaluation and no report (e.g. training on a GPU, "
                              "evaluating later with --skip-training)")
+    parser.add_argument("--export", type=pathlib.Path, default=None,
+                        help="after the report, copy it, its figures and evaluations and every run's config, metrics "
+                             "and best actors (no critic or optimizer state) to this folder")
     parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
                         help="MATCH (with SSL) leaves the selection term out of the PPO ratio (the authors' code); "
@@ -294,7 +385,7 @@ def parse_args(argv=None) -> SuiteConfig:
         parser.error(f"--time-budget-min must be a positive number of minutes, got {args.time_budget_min}")
     if args.train_only and args.skip_training:
         parser.error("--train-only and --skip-training exclude each other")
-    common = dict(out=args.out, only=only, selection_in_ratio=not args.selection_not_in_ratio,
+    common = dict(out=args.out, export=args.export, only=only, selection_in_ratio=not args.selection_not_in_ratio,
                   time_budget_min=args.time_budget_min, skip_training=args.skip_training,
                   train_only=args.train_only)
     if args.smoke:
@@ -316,6 +407,8 @@ def main(argv=None) -> int:
     results = evaluate_all(cfg)
     path = write_report(cfg, results, command)
     print(f"wrote {path}")
+    if cfg.export is not None:
+        export_suite(cfg, cfg.export)
     return 0
 
 

@@ -25,6 +25,7 @@ import signal
 import threading
 import time
 
+import flax.serialization
 import jax
 import numpy as np
 
@@ -393,6 +394,10 @@ def _policy_run(run_dir: str | pathlib.Path, which: str) -> Run:
 
 
 def _restore_policies(run: Run, which: str, seed_indices) -> list[dict]:
+    if is_exported(run.dir):
+        if which != "best":
+            raise RunError(f"{run.dir} holds exported best actors only; use the 'best' checkpoint, not {which!r}")
+        return [_load_actor(run, i) for i in seed_indices]
     if which == "best":
         target = run.policy_target()
         return [checkpoints.restore(checkpoints.best_dir(run.dir, i), target) for i in seed_indices]
@@ -400,9 +405,61 @@ def _restore_policies(run: Run, which: str, seed_indices) -> list[dict]:
     return [_seed_slice(policy, i) for i in seed_indices]
 
 
+ACTORS_DIR = "actors"
+
+
+def is_exported(run_dir: str | pathlib.Path) -> bool:
+    """Whether `run_dir` is an exported run (`export_actors`): config, metrics and best actors, no checkpoints."""
+    run_dir = pathlib.Path(run_dir)
+    return (run_dir / ACTORS_DIR).is_dir() and not (run_dir / "checkpoints").exists()
+
+
+def _actor_path(run_dir: pathlib.Path, seed_index: int) -> pathlib.Path:
+    return run_dir / ACTORS_DIR / f"seed{seed_index}.msgpack"
+
+
+def export_actors(run_dir: str | pathlib.Path, out_dir: str | pathlib.Path) -> pathlib.Path:
+    """Write the shippable part of a run to `out_dir`: config.json, metrics.jsonl / .csv, and per seed
+    the best checkpoint's actor parameters and observation normaliser (`actors/seed<i>.msgpack`, flax
+    msgpack) with its record (`actors/seed<i>.json`). No critic, no optimizer state: an exported run
+    evaluates (eval.py, `load_policies`) but does not resume."""
+    run, policies = load_policies(run_dir, "best")
+    out = pathlib.Path(out_dir)
+    (out / ACTORS_DIR).mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(run.spec.to_json())
+    for name in ("metrics.jsonl", "metrics.csv"):
+        if (run.dir / name).exists():
+            (out / name).write_bytes((run.dir / name).read_bytes())
+    for i, policy in enumerate(policies):
+        tree = jax.device_get({"actor": policy["params"]["actor"], "policy_stats": policy["policy_stats"]})
+        _actor_path(out, i).write_bytes(flax.serialization.msgpack_serialize(flax.serialization.to_state_dict(tree)))
+        (out / ACTORS_DIR / f"seed{i}.json").write_text(json.dumps(checkpoints.read_best_record(run.dir, i), indent=2))
+    return out
+
+
+def _load_actor(run: Run, seed_index: int) -> dict:
+    """{'params': {'actor'}, 'policy_stats'} of one seed of an exported run."""
+    path = _actor_path(run.dir, seed_index)
+    if not path.exists():
+        raise RunError(f"{path} is missing: the exported run has no actor for seed index {seed_index}")
+    full = run.policy_target()
+    target = {"actor": full["params"]["actor"], "policy_stats": full["policy_stats"]}
+    try:
+        tree = flax.serialization.from_state_dict(target, flax.serialization.msgpack_restore(path.read_bytes()))
+    except Exception as err:  # noqa: BLE001  (any decoding error: one line naming the file)
+        raise RunError(f"{path} is unreadable ({type(err).__name__}: {str(err).splitlines()[0][:200]})") from None
+    for want, got in zip(jax.tree_util.tree_leaves(target), jax.tree_util.tree_leaves(tree)):
+        if tuple(want.shape) != tuple(np.shape(got)):
+            raise RunError(f"{path} does not match {run.dir / 'config.json'}: a leaf of shape {np.shape(got)} "
+                           f"where the config gives {tuple(want.shape)}")
+    tree = jax.tree_util.tree_map(lambda want, x: jax.numpy.asarray(x, want.dtype), target, tree)
+    return {"params": {"actor": tree["actor"]}, "policy_stats": tree["policy_stats"]}
+
+
 def load_policies(run_dir: str | pathlib.Path, which: str = "best") -> tuple[Run, list[dict]]:
     """(Run, [{'params', 'policy_stats', 'critic_stats'} per seed]) from the seeds' best checkpoints or
-    the latest one; the Run (env, trainer) is built once for all seeds."""
+    the latest one; the Run (env, trainer) is built once for all seeds. From an exported run
+    (`export_actors`): [{'params': {'actor'}, 'policy_stats'}], the best actors only."""
     run = _policy_run(run_dir, which)
     return run, _restore_policies(run, which, range(run.spec.num_seeds))
 

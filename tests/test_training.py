@@ -17,7 +17,8 @@ import pytest
 import train as train_cli
 from match_jax import checkpoints
 from match_jax.presets import get_preset
-from match_jax.training import Run, RunError, RunSpec, _CheckpointWriter, load_policy, read_metrics, train
+from match_jax.training import (Run, RunError, RunSpec, _CheckpointWriter, export_actors, load_policies, load_policy,
+                                read_metrics, train)
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -69,6 +70,17 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypat
         assert record is not None and record["iteration"] in (1, 2)
         _, policy = load_policy(straight, seed, "best")
         assert set(policy) == {"params", "policy_stats", "critic_stats"}
+    # the exported run (best actors and normalisers only) loads the same actors; it cannot resume
+    exported = export_actors(straight, tmp_path / "exported")
+    assert not (exported / "checkpoints").exists() and (exported / "metrics.jsonl").exists()
+    _, shipped = load_policies(exported)
+    _, full = load_policies(straight)
+    for a, b in zip(shipped, full):
+        assert set(a) == {"params", "policy_stats"} and set(a["params"]) == {"actor"}
+        assert _leaves_equal(a["params"]["actor"], b["params"]["actor"])
+        assert _leaves_equal(a["policy_stats"], b["policy_stats"])
+    with pytest.raises(RunError, match="exported best actors only"):
+        load_policies(exported, "latest")
     # eval.py on the run: every seed, the Table 1 columns, selection rates, a JSON document
     import eval as eval_cli
     out = tmp_path / "eval.json"

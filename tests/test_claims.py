@@ -1,0 +1,69 @@
+"""Statistics of the suite's report: intervals, steps to a success rate, and the claim verdicts."""
+
+import math
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from match_jax import claims
+
+
+def test_ci95_halfwidth_is_the_t_interval():
+    assert claims.ci95_halfwidth([1.0, 2.0, 3.0]) == pytest.approx(scipy.stats.t.ppf(0.975, 2) / math.sqrt(3))
+    assert claims.ci95_halfwidth([1.0, 2.0, None, float("nan"), 3.0]) == pytest.approx(2.4841, abs=1e-3)
+    assert math.isnan(claims.ci95_halfwidth([1.0]))
+
+
+def test_difference_interval_is_welchs():
+    a, b = [1.0, 2.0, 3.0], [5.0, 7.0, 9.0, 11.0]
+    diff, lo, hi = claims.difference_ci(a, b)
+    va, vb = np.var(a, ddof=1) / 3, np.var(b, ddof=1) / 4
+    dof = (va + vb) ** 2 / (va ** 2 / 2 + vb ** 2 / 3)
+    half = scipy.stats.t.ppf(0.975, dof) * math.sqrt(va + vb)
+    assert diff == pytest.approx(-6.0) and lo == pytest.approx(-6.0 - half) and hi == pytest.approx(-6.0 + half)
+    assert claims.difference_ci([], b)[0] != claims.difference_ci([], b)[0]  # NaN
+
+
+@pytest.mark.parametrize("a, b, verdict", [
+    ([0.0, 0.01, 0.0], [0.2, 0.25, 0.3], claims.HOLDS),
+    ([0.2, 0.25, 0.3], [0.0, 0.01, 0.0], claims.FAILS),
+    ([0.0, 0.5, 0.1], [0.2, 0.0, 0.3], claims.INCONCLUSIVE),
+    ([], [0.2, 0.0, 0.3], claims.MISSING),
+])
+def test_verdict_lower(a, b, verdict):
+    assert claims.verdict_lower(a, b) == verdict
+
+
+def test_verdict_as_fast():
+    pose = [1.0e6, 1.1e6, 0.9e6]
+    assert claims.verdict_as_fast([1.05e6, 0.95e6, 1.1e6], pose) == claims.HOLDS  # within 20 %
+    assert claims.verdict_as_fast([2.0e6, 2.1e6, 1.9e6], pose) == claims.FAILS  # significantly slower
+    assert claims.verdict_as_fast([0.9e6, 1.9e6, 1.2e6], pose) == claims.INCONCLUSIVE  # 33 % slower, not significant
+    assert claims.verdict_as_fast([1.0e6], [1.0e6]) == claims.INCONCLUSIVE  # one seed each: no interval
+
+
+def test_steps_to_smooths_over_the_window():
+    steps = [100, 200, 300, 400, 500]
+    rate = [0.0, 0.9, 0.5, 0.9, 0.9]
+    assert claims.steps_to(steps, rate, 0.8, window=1) == 200
+    assert claims.steps_to(steps, rate, 0.8, window=2) == 500  # (0.5 + 0.9) / 2 = 0.7 at 400
+    assert claims.steps_to(steps, [0.9, float("nan"), 0.9], 0.8, window=2) == 200  # NaN iterations skipped
+    assert math.isnan(claims.steps_to(steps, rate, 0.95, window=1))
+
+
+def test_check_claims_reads_the_right_runs_and_metrics():
+    table = {("pose", "break"): [0.2, 0.25, 0.3], ("match", "break"): [0.0, 0.0, 0.01],
+             ("hybrid", "break"): [0.2, 0.3, 0.25], ("match", "force_contact"): [0.8, 0.9, 0.85],
+             ("match", "force_free"): [0.3, 0.2, 0.25]}
+    speed = {"match": [1e6, 1.1e6, 0.9e6], "pose": [1e6, 1.05e6, 0.95e6], "hybrid": [3e6, 3e6, 2.9e6]}
+    found = {c.text: c for c in claims.check_claims(lambda run, metric: table.get((run, metric), []),
+                                                    lambda run, threshold: speed.get(run, []))}
+    assert found["MATCH breaks less than Pose (10 N, training noise)"].verdict == claims.HOLDS
+    assert found["Hybrid-Basic breaks less than Pose (10 N, training noise)"].verdict == claims.INCONCLUSIVE
+    assert found["MATCH learns as fast as Pose (env steps to 80 % training success)"].verdict == claims.HOLDS
+    assert found["Hybrid-Basic learns slower than MATCH (env steps to 80 %)"].verdict == claims.HOLDS
+    assert found["MATCH selects force on most in-contact axes (paper: 84 %)"].verdict == claims.HOLDS
+    assert found["MATCH rarely selects force on free-space axes (paper: 2.9 %)"].verdict == claims.FAILS
+    assert found["MATCH without the SSL succeeds less often"].verdict == claims.MISSING
+    assert found["MATCH breaks less than Pose (10 N, training noise)"].numbers == "0.3 % vs 25.0 %"
