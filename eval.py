@@ -16,7 +16,6 @@ policies, the force-selection rate on in-contact and on free-space steps.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import os
@@ -73,47 +72,6 @@ def parse_args(argv=None) -> argparse.Namespace:
     return args
 
 
-def baseline_env(name: str, noise_m: float, noise_type: str = "gaussian", break_force: float = 10.0):
-    """The fPiH env a baseline runs in: its controller, the given hole noise (m) and break threshold (N)."""
-    from match_jax import baselines
-    from match_jax.envs import FPiHConfig, FPiHEnv
-
-    return FPiHEnv(FPiHConfig(control=baselines.BASELINES[name][0], hole_obs_noise=noise_m,
-                              hole_obs_noise_type=noise_type, break_force=break_force))
-
-
-def evaluate_baseline(name: str, episodes: int, noise_m: float, noise_type: str = "gaussian",
-                      break_force: float = 10.0, seed: int = 0, batch: int = 0) -> dict:
-    """Run `episodes` episodes of a baseline and return the summary dict (see match_jax.evaluation)."""
-    import jax
-    import numpy as np
-
-    from match_jax import baselines, evaluation
-
-    env = baseline_env(name, noise_m, noise_type, break_force)
-    policy, policy_state = baselines.make_baseline(name, env)
-    rollout = jax.jit(evaluation.make_rollout(env, policy))
-    batch = batch or episodes
-    keys = jax.random.split(jax.random.PRNGKey(seed), episodes)
-    per_episode = []
-    for start in range(0, episodes, batch):
-        chunk = keys[start:start + batch]
-        if len(chunk) < batch:  # pad to the compiled batch size, drop the padding afterwards
-            chunk = np.concatenate([chunk, keys[: batch - len(chunk)]])
-        states = jax.tree_util.tree_map(lambda x: np.broadcast_to(x, (batch,) + x.shape), policy_state)
-        traj = rollout(chunk, states)
-        metrics = evaluation.episode_metrics(traj, env.dt)
-        n = min(batch, episodes - start)
-        per_episode.append({k: v[:n] for k, v in metrics.items()})
-    merged = {k: np.concatenate([m[k] for m in per_episode]) for k in per_episode[0]}
-    summary = evaluation.summarize(merged)
-    summary.update(baseline=name, noise_mm=noise_m * 1000.0, noise_type=noise_type,
-                   break_force_n=break_force if math.isfinite(break_force) else None, seed=seed,
-                   env_config={k: v for k, v in dataclasses.asdict(env.config).items()
-                               if isinstance(v, (int, float, str))})
-    return summary
-
-
 def format_table(summary: dict) -> str:
     rows = [
         ("episodes", f"{summary['episodes']}"),
@@ -130,9 +88,10 @@ def format_table(summary: dict) -> str:
 
 def evaluate_run_dir(args) -> dict:
     """Evaluate a run at one noise level or over a sweep; returns the JSON document."""
-    from match_jax.run_eval import check_run_dir, evaluate_run_grid, format_result
+    from match_jax.evaluation import evaluate_run_grid, format_result
+    from match_jax.training import load_spec
 
-    check_run_dir(args.run_dir)
+    load_spec(args.run_dir)  # a one-line RunError unless it is a run directory
     break_force = math.inf if args.unbreakable else args.break_force
     levels = args.noise_levels if args.noise_sweep is not None else (
         None if args.noise_mm is None else [args.noise_mm])
@@ -167,9 +126,11 @@ def render_episode(args) -> None:
 
         run, policy_params = load_policy(args.run_dir, 0, args.checkpoint)
         env = run.env
-        policy = deterministic_policy(run.trainer, policy_params["params"], policy_params["policy_stats"])
-        policy_state, title = None, f"{args.run_dir} (seed index 0, {args.checkpoint} checkpoint)"
+        policy, policy_state = deterministic_policy(run.trainer), (policy_params["params"], policy_params["policy_stats"])
+        title = f"{args.run_dir} (seed index 0, {args.checkpoint} checkpoint)"
     else:
+        from match_jax.evaluation import baseline_env
+
         noise_mm = 1.0 if args.noise_mm is None else args.noise_mm
         env = baseline_env(args.baseline, noise_mm / 1000.0, args.noise_type or "gaussian",
                            math.inf if args.unbreakable else args.break_force)
@@ -202,6 +163,8 @@ def main(argv=None) -> int:
             return 2
     else:
         noise_mm = 1.0 if args.noise_mm is None else args.noise_mm
+        from match_jax.evaluation import evaluate_baseline
+
         summary = evaluate_baseline(args.baseline, args.episodes, noise_mm / 1000.0, args.noise_type or "gaussian",
                                     math.inf if args.unbreakable else args.break_force, args.seed, args.batch)
         print(format_table(summary))

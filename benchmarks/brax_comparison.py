@@ -327,7 +327,9 @@ def run_ours(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, l
         def stochastic(obs, pstate, key):
             head = trainer.policy_head(p[0], p[1], obs["state"])
             return trainer.distribution.to_action(trainer.distribution.sample(key, head)), pstate
-        return deterministic_policy(trainer, p[0], p[1]), stochastic
+        def deterministic(obs, pstate, key):
+            return deterministic_policy(trainer)(obs, p, key)[0], pstate
+        return deterministic, stochastic
 
     evaluate = make_evaluator(eval_env, policies_from_params, evaluator_keys)
 

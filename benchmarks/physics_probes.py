@@ -17,7 +17,6 @@ import pathlib
 
 import match_jax  # noqa: F401  (fast XLA CPU flag before JAX starts)
 
-import numpy as np
 
 from match_jax.controllers import ControllerConfig
 from match_jax.envs import FPiHConfig, FPiHEnv

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
-import time
 
 import match_jax  # noqa: F401  (fast XLA CPU flag)
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-PHASES = ("approach", "contact", "insertion")
+from match_jax.envs.fpih import PHASE_NAMES as PHASES
 
 
 def selection_profile(phase: np.ndarray, p_force: np.ndarray, alive: np.ndarray, bins: int = 10) -> dict:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
 import jax.numpy as jnp
 
 APPROACH, DESCEND, SPIRAL, INSERT, SEAT = 0, 1, 2, 3, 4
@@ -137,7 +136,6 @@ def make_spiral_policy(env, config: SpiralConfig = SpiralConfig()):
         referenced = state["referenced"] > 0
         above_bottom = jnp.where(referenced, height - (state["top"] - depth), height + depth)
         zone = jnp.where(referenced, config.careful_zone, config.slow_zone)
-        near_bottom = above_bottom < zone
         in_chamfer = height > state["contact_height"] - config.chamfer_depth
         # planned from where the tip will be at the end of this step
         ahead = above_bottom + jnp.minimum(vel[2], 0.0) * dt - zone

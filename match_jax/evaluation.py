@@ -1,18 +1,34 @@
-"""Evaluation: roll a policy out for whole episodes and compute the paper's Table 1 metrics.
+"""Evaluation: roll policies out for whole episodes and compute the paper's Table 1 metrics, for the
+scripted baselines and for every seed of a training run.
+
+    from match_jax.evaluation import evaluate_run, format_result
+    result = evaluate_run("runs/match_cpu", episodes=100)             # at the training noise
+    result = evaluate_run("runs/match_cpu", episodes=500, noise_mm=5.0, noise_type="uniform")
+    summary = evaluate_baseline("spiral", episodes=100, noise_m=1e-3)
 
 A policy is `policy(obs, policy_state, key) -> (action, policy_state)` for ONE env (it is vmapped),
-where `obs` is the env's observation dict. Metrics come only from the env's own per-step info.
+where `obs` is the env's observation dict; a trained run's is `ppo.deterministic_policy` (tanh of the
+mean, force control where p_force > 0.5). Metrics come only from the env's own per-step info; over
+seeds they are reported as mean +- standard error.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import pathlib
 from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
+import jax.scipy.stats  # noqa: F401
 import numpy as np
 
-from match_jax.envs.fpih import break_signal
+from match_jax import analysis, baselines
+from match_jax.envs import FPiHConfig, FPiHEnv
+from match_jax.envs.fpih import BREAK_SAMPLINGS, break_signal
+from match_jax.ppo import deterministic_policy
+from match_jax.training import batch_mesh, load_policies, load_spec, shard_batch
 
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
@@ -22,14 +38,15 @@ RECORDED = ("success", "engaged", "broken", "in_contact", "mean_force", "max_for
 
 
 def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_policy_state: bool = True,
-                 record_obs: bool = False):
+                 record_obs: bool = False, record_qpos: bool = False):
     """A jittable function (keys (B, 2), policy_state) -> trajectory dict of (T, B, ...) arrays.
 
     Each env runs exactly one episode of `num_steps` (default env.config.episode_steps) policy steps
     from `env.reset(key)`; steps after the episode ended (break) are marked by `done_before`.
     `policy_state` has a leading batch axis, or (batched_policy_state=False) is shared by all envs,
     e.g. a learned policy's parameters. record_obs=True also records 'policy_obs', the policy
-    observation each action was computed from.
+    observation each action was computed from; record_qpos=True 'qpos', the joint positions (rad)
+    after each step.
     """
     num_steps = num_steps or env.config.episode_steps
 
@@ -48,6 +65,8 @@ def make_rollout(env, policy: Policy, num_steps: int | None = None, batched_poli
             record["contact_axes_before"] = contact_before  # the contact the action was chosen in
             if record_obs:
                 record["policy_obs"] = obs_before
+            if record_qpos:
+                record["qpos"] = state.pipeline_state.qpos
             record["done_before"] = ended
             record["done"] = state.done
             return (state, pstate, jnp.maximum(ended, state.done)), record
@@ -178,3 +197,194 @@ def mean_and_standard_error(values) -> tuple[float, float]:
         return float("nan"), float("nan")
     se = float(np.std(x, ddof=1) / np.sqrt(len(x))) if len(x) > 1 else float("nan")
     return float(np.mean(x)), se
+
+
+SELECTION_COLUMNS = ("force_selected_contact", "force_selected_free", "force_selected_contact_per_axis",
+                     "force_selected_free_per_axis")
+COLUMNS = ("success_rate", "break_rate", "mean_time_to_success_s", "mean_force_n", *SELECTION_COLUMNS,
+           "break_rate_peak", "break_rate_policy_step")
+AXIS_COLUMNS = tuple(f"force_selected_{where}_{axis}" for where in ("contact", "free") for axis in "xyz")
+
+
+def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_levels_mm=None,
+                      noise_type: str | None = None, break_forces=None, checkpoint: str = "best",
+                      seed: int = 1000, return_trajectories: bool = False, noise_specs=None) -> list[dict]:
+    """Evaluate every seed of a run at several noise levels and break thresholds in ONE compiled rollout.
+
+    The rollout runs unbreakable; a break threshold is applied afterwards (identical up to the first
+    break, see `apply_break_threshold`). The hole-position observation error of episode e is
+    level x z_e, with z_e the same standard-gaussian (or uniform +-1) draw at every level, so noise
+    levels are compared on the same episodes. Defaults: the run's training noise level and type, and
+    its break threshold. `noise_specs`, a list of (level mm, 'gaussian' | 'uniform'), replaces
+    noise_levels_mm / noise_type to mix noise types in the same compiled rollout. Returns one result
+    dict (see `evaluate_run`) per (noise level, break force).
+    """
+    if not (isinstance(episodes, int) and episodes >= 1):
+        raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+    spec = load_spec(run_dir)
+    if noise_specs is None:
+        levels = [spec.env.hole_obs_noise * 1000.0] if noise_levels_mm is None else [float(x) for x in noise_levels_mm]
+        noise_specs = [(level, noise_type or spec.env.hole_obs_noise_type) for level in levels]
+    levels, types = [float(level) for level, _ in noise_specs], [kind for _, kind in noise_specs]
+    if any(kind not in ("gaussian", "uniform") for kind in types):
+        raise ValueError(f"noise types must be 'gaussian' or 'uniform', got {types}")
+    break_forces = [spec.env.break_force] if break_forces is None else [float(f) for f in break_forces]
+    if any(not f > 0 for f in break_forces) or any(not (x >= 0 and math.isfinite(x)) for x in levels):
+        raise ValueError(f"break forces must be > 0 and noise levels finite >= 0, got {break_forces}, {levels}")
+    env = FPiHEnv(dataclasses.replace(spec.env, break_force=math.inf))  # breaks are applied afterwards
+    run, policies = load_policies(run_dir, checkpoint)
+    stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[(p["params"], p["policy_stats"]) for p in policies])
+    hybrid = run.trainer.distribution.num_selections > 0
+    rollout = make_rollout(env, deterministic_policy(run.trainer), batched_policy_state=False, record_obs=hybrid)
+
+    def one_level(keys, policy_state, offsets):
+        traj = rollout(keys, policy_state, offsets)
+        if hybrid:  # probability of force control behind every action, (T, E, 3)
+            params, stats = policy_state
+            traj["p_force"] = jax.nn.sigmoid(run.trainer.policy_head(params, stats, traj.pop("policy_obs")).logits)
+        return traj
+
+    def one_seed(keys, policy_state, offsets):  # offsets (L, E, 3)
+        return jax.vmap(one_level, in_axes=(None, None, 0))(keys, policy_state, offsets)
+
+    k_episodes, k_noise = jax.random.split(jax.random.PRNGKey(seed))
+    keys = jax.random.split(k_episodes, spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
+    shape = (spec.num_seeds, 1, episodes, 3)
+    z_gauss = jax.random.normal(k_noise, shape)
+    z_uniform = 2.0 * jax.scipy.stats.norm.cdf(z_gauss) - 1.0  # the same draw, mapped to U(-1, 1)
+    is_gauss = jnp.asarray([kind == "gaussian" for kind in types])[None, :, None, None]
+    z = jnp.where(is_gauss, z_gauss, z_uniform)
+    offsets = jnp.asarray(levels)[None, :, None, None] / 1000.0 * z  # (S, L, E, 3), m
+    mesh = batch_mesh(episodes)  # episodes split over the CPU devices (one per core), if they divide evenly
+    keys, offsets = shard_batch(keys, 1, mesh), shard_batch(offsets, 2, mesh)
+    traj = jax.device_get(jax.jit(jax.vmap(one_seed))(keys, stacked, offsets))  # (S, L, T, E, ...)
+
+    results = []
+    for li, (level, noise_type) in enumerate(zip(levels, types)):
+        for force in break_forces:
+            per_seed, seed_trajs = [], []
+            for i in range(spec.num_seeds):
+                unbroken = {k: v[i, li] for k, v in traj.items()}
+                by_sampling = {}  # both samplings on the same episodes; the run's own one is the summary
+                for sampling in BREAK_SAMPLINGS if math.isfinite(force) else (spec.env.break_sampling,):
+                    broken = apply_break_threshold(unbroken, force, sampling) \
+                        if math.isfinite(force) else unbroken
+                    by_sampling[sampling] = (broken, summarize(episode_metrics(broken, env.dt)))
+                seed_traj, summary = by_sampling[spec.env.break_sampling]
+                seed_trajs.append(seed_traj)
+                for s in BREAK_SAMPLINGS:  # unbreakable: one rollout, no break under either sampling
+                    summary[f"break_rate_{s}"] = (by_sampling[s][1] if s in by_sampling else summary)["break_rate"]
+                summary["seed"] = spec.seed + i
+                if not hybrid:  # no selection: the force-selection columns do not apply
+                    for column in SELECTION_COLUMNS + AXIS_COLUMNS:
+                        summary[column] = float("nan")
+                else:
+                    summary.update(analysis.contact_selection_rates(
+                        seed_traj["in_contact"], seed_traj["p_force"], 1.0 - seed_traj["done_before"]))
+                per_seed.append(summary)
+            result = {
+                "run_dir": str(run_dir),
+                "method": spec.ppo.method,
+                "ssl_coef": spec.ppo.ssl_beta,
+                "checkpoint": checkpoint,
+                "episodes_per_seed": episodes,
+                "seeds": spec.num_seeds,
+                "noise_mm": level,
+                "noise_type": noise_type,
+                "break_force_n": force if math.isfinite(force) else None,
+                "break_sampling": spec.env.break_sampling,
+                "per_seed": per_seed,
+                "aggregate": _aggregate(per_seed, hybrid),
+            }
+            if hybrid:  # the paper's selection figure, over all seeds' episodes
+                flat = {k: np.concatenate([t[k] for t in seed_trajs], axis=1)
+                        for k in ("phase", "p_force", "done_before")}
+                profile = analysis.selection_profile(flat["phase"], flat["p_force"], 1.0 - flat["done_before"])
+                result["selection_profile"] = {k: np.asarray(v).tolist() for k, v in profile.items()}
+            if return_trajectories:
+                result["trajectories"] = seed_trajs
+            results.append(result)
+    return results
+
+
+def _aggregate(per_seed: list[dict], hybrid: bool) -> dict:
+    columns = COLUMNS + AXIS_COLUMNS + (("p_force_contact", "p_force_free") if hybrid else ())
+    out = {}
+    for column in columns:
+        mean, se = mean_and_standard_error([s[column] for s in per_seed])
+        out[column] = {"mean": mean, "se": se}
+    return out
+
+
+def evaluate_run(run_dir: str | pathlib.Path, episodes: int = 100, noise_mm: float | None = None,
+                 noise_type: str | None = None, break_force: float | None = None, checkpoint: str = "best",
+                 seed: int = 1000, return_trajectories: bool = False) -> dict:
+    """Evaluate every seed of a run on `episodes` episodes each; per-seed and mean +- SE metrics.
+
+    noise_mm / noise_type / break_force override the run's task settings (None: as trained).
+    """
+    return evaluate_run_grid(run_dir, episodes, None if noise_mm is None else [noise_mm], noise_type,
+                             None if break_force is None else [break_force], checkpoint, seed,
+                             return_trajectories)[0]
+
+
+def format_result(result: dict) -> str:
+    """A readable table: one row per seed and the mean +- SE row."""
+    head = (f"{result['method']} (ssl {result['ssl_coef']:g}), {result['checkpoint']} checkpoint, "
+            f"{result['episodes_per_seed']} episodes x {result['seeds']} seeds, hole noise {result['noise_mm']:g} mm "
+            f"({result['noise_type']}), break force {result['break_force_n'] or 'none'}")
+    names = ("success %", "break %", "time (s)", "force (N)", "F-sel contact %", "F-sel free %",
+             "F-sel/axis cont %", "F-sel/axis free %", "break peak %", "break 15Hz %")
+    scale = (100, 100, 1, 1, 100, 100, 100, 100, 100, 100)
+    lines = [head, "  seed    " + "".join(f"{n:>17}" for n in names)]
+    for s in result["per_seed"]:
+        cells = "".join(f"{_fmt(s[c] * k):>17}" for c, k in zip(COLUMNS, scale))
+        lines.append(f"  {s['seed']:<8}" + cells)
+    agg = result["aggregate"]
+    cells = "".join(f"{_fmt_mean_se(agg[c]['mean'] * k, agg[c]['se'] * k):>17}" for c, k in zip(COLUMNS, scale))
+    lines.append("  mean+-SE" + cells)
+    return "\n".join(lines)
+
+
+def _fmt(x: float) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.1f}" if abs(x) >= 10 else f"{x:.2f}"
+
+
+def _fmt_mean_se(mean: float, se: float) -> str:
+    if math.isnan(mean):
+        return "-"
+    return _fmt(mean) if math.isnan(se) else f"{_fmt(mean)} +- {_fmt(se)}"
+
+
+def baseline_env(name: str, noise_m: float, noise_type: str = "gaussian", break_force: float = 10.0):
+    """The fPiH env a baseline runs in: its controller, the given hole noise (m) and break threshold (N)."""
+    return FPiHEnv(FPiHConfig(control=baselines.BASELINES[name][0], hole_obs_noise=noise_m,
+                              hole_obs_noise_type=noise_type, break_force=break_force))
+
+
+def evaluate_baseline(name: str, episodes: int, noise_m: float, noise_type: str = "gaussian",
+                      break_force: float = 10.0, seed: int = 0, batch: int = 0) -> dict:
+    """Run `episodes` episodes of a scripted baseline (`match_jax.baselines`); the `summarize` dict and settings.
+    `batch` > 0 runs the episodes in compiled batches of that size (0: all at once)."""
+    env = baseline_env(name, noise_m, noise_type, break_force)
+    policy, policy_state = baselines.make_baseline(name, env)
+    rollout = jax.jit(make_rollout(env, policy))
+    batch = batch or episodes
+    keys = jax.random.split(jax.random.PRNGKey(seed), episodes)
+    per_episode = []
+    for start in range(0, episodes, batch):
+        chunk = keys[start:start + batch]
+        if len(chunk) < batch:  # pad to the compiled batch size, drop the padding afterwards
+            chunk = np.concatenate([chunk, keys[: batch - len(chunk)]])
+        states = jax.tree_util.tree_map(lambda x: np.broadcast_to(x, (batch,) + x.shape), policy_state)
+        traj = rollout(chunk, states)
+        metrics = episode_metrics(traj, env.dt)
+        n = min(batch, episodes - start)
+        per_episode.append({k: v[:n] for k, v in metrics.items()})
+    merged = {k: np.concatenate([m[k] for m in per_episode]) for k in per_episode[0]}
+    summary = summarize(merged)
+    summary.update(baseline=name, noise_mm=noise_m * 1000.0, noise_type=noise_type,
+                   break_force_n=break_force if math.isfinite(break_force) else None, seed=seed,
+                   env_config={k: v for k, v in dataclasses.asdict(env.config).items()
+                               if isinstance(v, (int, float, str))})
+    return summary

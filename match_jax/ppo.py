@@ -32,7 +32,7 @@ from brax.training.acme import specs
 
 from match_jax.distributions import METHODS, METHOD_CONTROL, Sample, make_distribution
 from match_jax.losses import ppo_loss, selection_loss  # noqa: F401  (selection_loss: public here too)
-from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
+from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv, contract
 from match_jax.networks import Actor, Critic, NetworkConfig
 
 
@@ -218,8 +218,8 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
     its own MJX solver loops), as Brax's pmap does; measured on 2 CPU devices that stepped a
     contact-heavy batch 1.2x faster than leaving the partitioning to XLA. mesh=None: a plain step.
     """
+    contract.check_interface(env)
     dist = make_distribution(config.method, config.selection_in_ratio)
-    space = dist.space
     actor = Actor(dist.num_continuous, dist.num_selections, config.network, initial_mean_bias(config, env))
     critic = Critic(config.network)
     benv = AutoResetEnv(env)
@@ -268,6 +268,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
         params = {"actor": actor.init(k_actor, jnp.zeros((1, policy_size))),
                   "critic": critic.init(k_critic, jnp.zeros((1, critic_size)))}
         env_state = benv.reset(jax.random.split(k_env, config.num_envs))
+        contract.check_state(env_state, f"{type(env).__name__}.reset")  # at trace time: free
         return TrainState(
             params=params,
             opt_state=optimizer.init(params),
@@ -300,6 +301,7 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
             sample = jax.vmap(dist.sample)(step_keys, head)
             log_prob = dist.log_prob(sample, head)
             next_state = env_step(env_state, dist.to_action(sample))
+            contract.check_state(next_state, f"{type(env).__name__}.step")  # at trace time: free
             final_raw = critic_obs_raw(next_state.info["final_obs"]["privileged_state"], env_state.info["steps"] + 1)
             done, broken = next_state.done, next_state.info["broken"]
             ep_success = jnp.maximum(ep_success, next_state.info["success"] * (1.0 - broken))
@@ -453,11 +455,12 @@ def deterministic_action(trainer: Trainer, params: dict, policy_stats, policy_ob
     return dist.to_action(dist.mode(trainer.policy_head(params, policy_stats, policy_obs)))
 
 
-def deterministic_policy(trainer: Trainer, params: dict, policy_stats) -> Any:
-    """`policy(obs, policy_state, key) -> (action, policy_state)` for match_jax.evaluation, with the
-    parameters closed over (see `deterministic_action`)."""
+def deterministic_policy(trainer: Trainer) -> Any:
+    """`policy(obs, (params, policy_stats), key) -> (action, same state)` for match_jax.evaluation: the
+    deterministic action (`deterministic_action`), with the parameters as the policy state, so one
+    compiled rollout serves every seed."""
 
     def policy(obs, policy_state, key):
-        return deterministic_action(trainer, params, policy_stats, obs["state"]), policy_state
+        return deterministic_action(trainer, *policy_state, obs["state"]), policy_state
 
     return policy

@@ -15,10 +15,10 @@ from __future__ import annotations
 import pathlib
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-PHASE_NAMES = ("approach", "contact", "insertion")
+from match_jax.envs.fpih import PHASE_NAMES
+from match_jax.evaluation import make_rollout
 
 
 class RenderUnavailable(RuntimeError):
@@ -26,35 +26,26 @@ class RenderUnavailable(RuntimeError):
 
 
 def record_episode(env, policy, policy_state, key: jax.Array, num_steps: int | None = None) -> dict[str, np.ndarray]:
-    """Run one episode and return what a renderer and a caption need, as numpy arrays over time.
+    """Run one episode (`evaluation.make_rollout`) and return what a renderer and a caption need, as numpy
+    arrays over time.
 
     Keys: 'qpos' (T+1, nq) joint positions (rad) including the reset state; 'hole_pos' (3,) and
     'hole_quat' (4,) (world, the hole's mocap pose); per step (T,): 'phase', 'max_force' (N),
-    'success', 'broken', 'done'. `policy(obs, policy_state, key) -> (action, policy_state)` acts on one env.
+    'success', 'broken', 'done' (the episode has ended by this step). `policy(obs, policy_state, key) ->
+    (action, policy_state)` acts on one env.
     """
-    num_steps = num_steps or env.config.episode_steps
+    rollout = make_rollout(env, policy, num_steps, batched_policy_state=False, record_qpos=True)
 
     def episode(key, policy_state):
-        reset_key, policy_key = jax.random.split(key)
-        state = env.reset(reset_key)
-
-        def body(carry, step_key):
-            state, pstate, ended = carry
-            action, pstate = policy(state.obs, pstate, step_key)
-            state = env.step(state, action)
-            record = {"qpos": state.pipeline_state.qpos, "phase": state.info["phase"],
-                      "max_force": state.info["max_force"], "success": state.info["success"],
-                      "broken": state.info["broken"], "done": jnp.maximum(ended, state.done)}
-            return (state, pstate, jnp.maximum(ended, state.done)), record
-
-        _, traj = jax.lax.scan(body, (state, policy_state, jnp.zeros(())), jax.random.split(policy_key, num_steps))
-        data = state.pipeline_state
+        traj = jax.tree_util.tree_map(lambda x: x[:, 0], rollout(key[None], policy_state))
+        data = env.reset(jax.random.split(key)[0]).pipeline_state  # make_rollout's reset of this key
         hole = env.ids.hole_mocap
-        traj["qpos"] = jnp.concatenate([data.qpos[None], traj["qpos"]], axis=0)
-        return traj, data.mocap_pos[hole], data.mocap_quat[hole]
+        return traj, data.qpos, data.mocap_pos[hole], data.mocap_quat[hole]
 
-    traj, hole_pos, hole_quat = jax.device_get(jax.jit(episode)(key, policy_state))
-    out = {k: np.asarray(v) for k, v in traj.items()}
+    traj, qpos0, hole_pos, hole_quat = jax.device_get(jax.jit(episode)(key, policy_state))
+    out = {k: np.asarray(traj[k]) for k in ("phase", "max_force", "success", "broken")}
+    out["done"] = np.maximum(np.asarray(traj["done_before"]), np.asarray(traj["done"]))
+    out["qpos"] = np.concatenate([np.asarray(qpos0)[None], np.asarray(traj["qpos"])], axis=0)
     out["hole_pos"], out["hole_quat"] = np.asarray(hole_pos), np.asarray(hole_quat)
     return out
 

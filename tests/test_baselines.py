@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-import eval as eval_cli
+from match_jax.evaluation import evaluate_baseline
 
 
 @pytest.fixture(scope="module")
 def spiral_summary():
-    return eval_cli.evaluate_baseline("spiral", episodes=24, noise_m=0.001, seed=7)
+    return evaluate_baseline("spiral", episodes=24, noise_m=0.001, seed=7)
 
 
 def test_spiral_search_inserts(spiral_summary):
@@ -21,12 +21,12 @@ def test_spiral_search_inserts(spiral_summary):
 
 @pytest.mark.slow
 def test_spiral_search_100_episodes():
-    summary = eval_cli.evaluate_baseline("spiral", episodes=100, noise_m=0.001, seed=0)
+    summary = evaluate_baseline("spiral", episodes=100, noise_m=0.001, seed=0)
     assert summary["success_rate"] >= 0.9 and summary["break_rate"] <= 0.02, summary
 
 
 @pytest.mark.slow
 def test_pose_descent_is_worse_at_2p5mm():
-    spiral = eval_cli.evaluate_baseline("spiral", episodes=100, noise_m=0.0025, seed=0)
-    pose = eval_cli.evaluate_baseline("pose", episodes=100, noise_m=0.0025, seed=0)
+    spiral = evaluate_baseline("spiral", episodes=100, noise_m=0.0025, seed=0)
+    pose = evaluate_baseline("pose", episodes=100, noise_m=0.0025, seed=0)
     assert pose["success_rate"] < spiral["success_rate"], (pose, spiral)

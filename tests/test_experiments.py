@@ -5,7 +5,7 @@ import match_jax  # noqa: F401
 import json
 import pathlib
 
-from match_jax import experiments
+from match_jax import checkpoints, experiments
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -18,17 +18,31 @@ def test_smoke_suite_writes_report_and_plots(tmp_path):
     assert experiments.main(["--smoke", "--out", str(out), "--only", "pose", "--train-only"]) == 0
     assert (out / "runs" / "pose" / "metrics.csv").exists()
     assert not (out / "eval").exists() and not (out / "REPORT.md").exists()
-    assert experiments.main(["--smoke", "--out", str(out), "--only", "pose,match"]) == 0
+    # a run stopped by its time budget is not evaluated yet; the finished one is, and the report says so
+    assert experiments.main(["--smoke", "--out", str(out), "--only", "pose,match", "--time-budget-min", "1e-4"]) == 0
+    assert (out / "eval" / "pose.json").exists() and not (out / "eval" / "match.json").exists()
+    assert "| Pose |" in (out / "REPORT.md").read_text() and "| MATCH |" not in (out / "REPORT.md").read_text()
+    # the same command without the budget finishes MATCH, evaluates it, and exports the suite
+    shipped = tmp_path / "shipped"
+    assert experiments.main(["--smoke", "--out", str(out), "--only", "pose,match", "--export", str(shipped)]) == 0
     report = (out / "REPORT.md").read_text()
     for label in ("Pose", "MATCH"):
         assert f"| {label} |" in report
     assert "Smoke run" in report and "95.4" in report  # the paper's numbers beside ours
+    assert "steps to 80 %" in report and "| MATCH breaks less than Pose (10 N, training noise) |" in report
+    assert (shipped / "REPORT.md").read_text() == report and (shipped / "eval" / "match.json").exists()
+    for name in ("pose", "match"):
+        assert sorted(p.name for p in (shipped / "runs" / name / "actors").iterdir()) == [
+            "seed0.json", "seed0.msgpack", "seed1.json", "seed1.msgpack"]
+        assert not (shipped / "runs" / name / "checkpoints").exists()
     for name in ("learning_curves.png", "noise_robustness.png", "selection_profile.png"):
         data = (out / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
     grid = json.loads((out / "eval" / "match.json").read_text())
     assert len(grid) == 2 * (1 + len(experiments.SWEEP_MM))  # (training noise + sweep) x (break, unbreakable)
     assert {r["break_force_n"] for r in grid} == {10.0, None}
+    best = [checkpoints.read_best_record(out / "runs" / "match", i)["iteration"] for i in range(2)]
+    assert all(r["best_iterations"] == best for r in grid)  # which checkpoints it evaluated
     # resumable: a second call skips finished training and evaluation
     mtime = (out / "eval" / "match.json").stat().st_mtime
     assert experiments.main(["--smoke", "--out", str(out), "--only", "match"]) == 0

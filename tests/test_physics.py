@@ -169,7 +169,6 @@ def test_break_sampling_peak_vs_once_per_policy_step():
     """A scripted ram (full-speed position descent onto the block, threshold 20 N): the contact spike
     breaks the peg when the peak over physics steps is sampled (default), not when the force is read
     once per policy step (the authors' sampling), whose reading after the impact is far lower."""
-    import dataclasses
     import math
 
     from match_jax.envs import FPiHConfig, FPiHEnv

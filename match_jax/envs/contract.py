@@ -46,21 +46,31 @@ class TrainableEnv(Protocol):
     def step(self, state: Any, action: jax.Array) -> Any: ...
 
 
-def check_env(env) -> None:
-    """ValueError naming what `env` lacks of the contract (checked on abstract shapes: nothing compiles)."""
+def check_interface(env) -> None:
+    """ValueError unless `env` has the contract's methods, sizes and config.episode_steps (no tracing)."""
     if not isinstance(env, TrainableEnv):
         raise ValueError(f"{type(env).__name__} lacks reset/step/action_size/observation_size/config")
     if not isinstance(getattr(env.config, "episode_steps", None), int):
         raise ValueError(f"{type(env).__name__}.config has no integer episode_steps")
+
+
+def check_state(state, where: str) -> None:
+    """ValueError naming the obs / info keys a (possibly abstract or traced) State lacks; `where` names it."""
+    missing_obs = sorted(set(OBS_KEYS) - set(state.obs))
+    missing_info = sorted(set(INFO_KEYS) - set(state.info))
+    if missing_obs or missing_info:
+        raise ValueError(f"{where} state lacks obs keys {missing_obs} / info keys {missing_info}")
+    if state.info["contact_axes"].shape[-1:] != (3,):
+        raise ValueError(f"{where}: info['contact_axes'] has shape {state.info['contact_axes'].shape}, expected (..., 3)")
+
+
+def check_env(env) -> None:
+    """ValueError naming what `env` lacks of the contract (checked on abstract shapes: nothing compiles).
+    The trainer runs the same checks on the states it traces (`ppo.make_trainer`)."""
+    check_interface(env)
     key = jax.random.PRNGKey(0)
     state = jax.eval_shape(env.reset, key)
     action = jax.ShapeDtypeStruct((env.action_size,), jax.numpy.float32)
     stepped = jax.eval_shape(env.step, state, action)
     for name, s in (("reset", state), ("step", stepped)):
-        missing_obs = sorted(set(OBS_KEYS) - set(s.obs))
-        missing_info = sorted(set(INFO_KEYS) - set(s.info))
-        if missing_obs or missing_info:
-            raise ValueError(f"{type(env).__name__}.{name} state lacks obs keys {missing_obs} / info keys {missing_info}")
-        if s.info["contact_axes"].shape != (3,):
-            raise ValueError(f"{type(env).__name__}.{name}: info['contact_axes'] has shape "
-                             f"{s.info['contact_axes'].shape}, expected (3,)")
+        check_state(s, f"{type(env).__name__}.{name}")

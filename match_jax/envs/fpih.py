@@ -32,6 +32,7 @@ R_DOWN = np.diag([1.0, -1.0, -1.0])
 NOISE_TYPES = ("gaussian", "uniform")
 BREAK_SAMPLINGS = ("peak", "policy_step")
 PHASE_APPROACH, PHASE_CONTACT, PHASE_INSERTION = 0, 1, 2
+PHASE_NAMES = ("approach", "contact", "insertion")  # info['phase'] -> name
 
 
 @dataclasses.dataclass(frozen=True)
