@@ -156,6 +156,7 @@ def test_corrupted_checkpoint_is_a_clear_error(tmp_path, capsys):
         checkpoints.restore(tmp_path / "none", tree)
 
 
+@pytest.mark.slow
 def test_envs_shard_over_host_devices(tmp_path):
     """In a fresh process with 3 CPU devices, 4 envs split over 2 of them (the most that divide 4);
     for 2 seeds (one seed takes the same path with a seed axis of 1) the env step runs under shard_map, the rollout matches an unsharded trainer's
