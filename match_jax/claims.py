@@ -3,7 +3,9 @@ and the paper's qualitative claims checked as differences of per-seed means.
 
 A claim "a is lower than b" *holds* when the 95 % interval of mean(a) - mean(b) (Welch's t, per-seed
 values) lies below 0, *does not hold* when it lies above 0, and is *inconclusive* otherwise. "a is as
-fast as b" holds when a is not significantly slower and its mean is at most 20 % above b's.
+fast as b" holds when a is not significantly slower and its mean is at most 20 % above b's. Env steps
+of a seed that never reached the threshold are a lower bound (censored): a verdict that its true,
+larger value could overturn reads inconclusive.
 """
 
 from __future__ import annotations
@@ -47,27 +49,32 @@ def difference_ci(a, b) -> tuple[float, float, float]:
     return diff, diff - half, diff + half
 
 
-def verdict_lower(a, b) -> str:
-    """Whether per-seed values `a` are lower than `b` (see the module docstring)."""
+def verdict_lower(a, b, a_censored: bool = False, b_censored: bool = False) -> str:
+    """Whether per-seed values `a` are lower than `b` (see the module docstring). `x_censored`: some of x's
+    values are lower bounds (a seed that never reached the threshold), so "holds" needs `a` exact and
+    "does not hold" needs `b` exact; otherwise the verdict is inconclusive."""
     diff, lo, hi = difference_ci(a, b)
     if math.isnan(diff):
         return MISSING
-    if hi < 0:
+    if hi < 0 and not a_censored:
         return HOLDS
-    if lo > 0:
+    if lo > 0 and not b_censored:
         return FAILS
     return INCONCLUSIVE
 
 
-def verdict_as_fast(a, b) -> str:
-    """Whether env steps `a` are no more than b's (not significantly more, mean within 20 %)."""
+def verdict_as_fast(a, b, a_censored: bool = False, b_censored: bool = False) -> str:
+    """Whether env steps `a` are no more than b's (not significantly more, mean within 20 %); with
+    censored values (lower bounds) as in `verdict_lower`."""
     diff, lo, _ = difference_ci(a, b)
     if math.isnan(diff):
         return MISSING
     if math.isnan(lo):  # one seed: no interval
         return INCONCLUSIVE
     if lo > 0:
-        return FAILS
+        return INCONCLUSIVE if b_censored else FAILS
+    if a_censored:
+        return INCONCLUSIVE
     return HOLDS if diff <= AS_FAST_MARGIN * float(np.mean(_finite(b))) else INCONCLUSIVE
 
 
@@ -98,20 +105,20 @@ def _pct(values) -> str:
     return "-" if math.isnan(_mean(values)) else f"{100 * _mean(values):.1f} %"
 
 
-def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float], list]) -> list[Claim]:
+def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float], tuple[list, bool]]) -> list[Claim]:
     """The paper's qualitative claims. `values(run, metric)`: per-seed evaluation values of a suite run
     (metric names: 'success', 'break', 'force', 'force_contact', 'force_free', 'success_7.5',
-    'success_unbreakable_7.5'); empty if the run is missing. `steps(run, threshold)`: per-seed env steps to
-    that training success (a seed that never reaches it counted at the run's budget, a lower bound).
-    A claim whose runs are missing reads 'not run'."""
+    'success_unbreakable_7.5'); empty if the run is missing. `steps(run, threshold)`: (per-seed env steps to
+    that training success, whether any of them is a lower bound: a seed that never reached it, counted at
+    the env steps it trained). A claim whose runs are missing reads 'not run'."""
     claims = []
 
     def lower(text, a_run, b_run, metric, fmt=_pct):
         a, b = values(a_run, metric), values(b_run, metric)
         claims.append(Claim(text, verdict_lower(a, b), f"{fmt(a)} vs {fmt(b)}"))
 
-    def steps_fmt(x):
-        return "-" if math.isnan(_mean(x)) else f"{_mean(x) / 1e6:.2f}M"
+    def steps_fmt(x, censored):
+        return "-" if math.isnan(_mean(x)) else (">= " if censored else "") + f"{_mean(x) / 1e6:.2f}M"
 
     for hybrid in ("hybrid", "match"):
         lower(f"{'Hybrid-Basic' if hybrid == 'hybrid' else 'MATCH'} breaks less than Pose (10 N, training noise)",
@@ -120,12 +127,12 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
         label = "Hybrid-Basic" if hybrid == "hybrid" else "MATCH"
         a, b = values("pose", "success"), values(hybrid, "success")
         claims.append(Claim(f"{label} succeeds more often than Pose", verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
-    a, b = steps("match", 0.8), steps("pose", 0.8)
-    claims.append(Claim("MATCH learns as fast as Pose (env steps to 80 % training success)", verdict_as_fast(a, b),
-                        f"{steps_fmt(a)} vs {steps_fmt(b)}"))
-    a, b = steps("match", 0.8), steps("hybrid", 0.8)
-    claims.append(Claim("Hybrid-Basic learns slower than MATCH (env steps to 80 %)", verdict_lower(a, b),
-                        f"{steps_fmt(b)} vs {steps_fmt(a)}"))
+    (a, a_cens), (b, b_cens) = steps("match", 0.8), steps("pose", 0.8)
+    claims.append(Claim("MATCH learns as fast as Pose (env steps to 80 % training success)",
+                        verdict_as_fast(a, b, a_cens, b_cens), f"{steps_fmt(a, a_cens)} vs {steps_fmt(b, b_cens)}"))
+    (b, b_cens) = steps("hybrid", 0.8)
+    claims.append(Claim("Hybrid-Basic learns slower than MATCH (env steps to 80 %)", verdict_lower(a, b, a_cens, b_cens),
+                        f"{steps_fmt(b, b_cens)} vs {steps_fmt(a, a_cens)}"))
     for run, label in (("match", "MATCH"), ("hybrid", "Hybrid-Basic")):
         a, b = values(f"{run}_nossl", "success"), values(run, "success")
         claims.append(Claim(f"{label} without the SSL succeeds less often", verdict_lower(a, b),

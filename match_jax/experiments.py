@@ -100,6 +100,9 @@ def train_one(cfg: SuiteConfig, name: str, log=print) -> bool:
     spec = run_spec(name, cfg)
     budget = None if cfg.time_budget_min is None else 60.0 * cfg.time_budget_min
     if checkpoints.latest_step(checkpoints.latest_dir(run_dir)) is None:
+        if checkpoints.read_best_record(run_dir, 0) is not None or (run_dir / "actors").exists():
+            raise ValueError(f"{run_dir} holds best policies but no training state to resume (a copied or "
+                             f"exported run): evaluate it with --skip-training, or train into another --out")
         log(f"[train] {name}: starting ({spec.ppo.total_steps:,} steps x {spec.num_seeds} seeds)")
         summary = train(spec, run_dir, progress=not cfg.smoke, time_budget_s=budget)
     else:
@@ -127,7 +130,7 @@ def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
     best = _best_iterations(run_dir, cfg.seeds)
     if path.exists():
         grid = json.loads(path.read_text())
-        if all(r.get("best_iterations") == best for r in grid):
+        if grid and all(r.get("best_iterations") == best for r in grid):
             return grid
         log(f"[eval] {name}: the best checkpoints changed since {path.name}; evaluating again")
     spec = run_spec(name, cfg)
@@ -151,6 +154,10 @@ def run_suite(cfg: SuiteConfig, command: str, log=print) -> dict[str, list[dict]
     --skip-training evaluates whatever checkpoints exist; --train-only evaluates nothing."""
     results = {}
     for name in cfg.only:
+        run_dir = cfg.out / "runs" / name
+        if cfg.skip_training and (run_dir / "config.json").exists() and load_spec(run_dir) != run_spec(name, cfg):
+            raise ValueError(f"{run_dir} was trained with other settings than this command's (seeds, steps, "
+                             f"preset, ratio): repeat the training command's options")
         finished = cfg.skip_training or train_one(cfg, name, log)
         if cfg.train_only or not finished:
             continue
@@ -238,8 +245,10 @@ def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict]) -> lis
 
     def steps(name, threshold):
         if name not in curves:
-            return []
-        return [curves[name]["budget"] if math.isnan(x) else x for x in steps_to(curves[name], threshold)]
+            return [], False
+        trained = float(curves[name]["env_steps"][-1])  # a seed that never reached it: at least this many
+        values = steps_to(curves[name], threshold)
+        return [trained if math.isnan(x) else x for x in values], any(math.isnan(x) for x in values)
 
     return claims.check_claims(values, steps)
 
@@ -351,7 +360,8 @@ def _claims_lines(results: dict[str, list[dict]], curves: dict[str, dict]) -> li
               "A claim holds when the 95 % interval (Welch) of the difference of the seeds' means lies on its side "
               "of 0, does not hold when it lies on the other side, and is inconclusive otherwise; 'as fast as' "
               f"holds when not significantly slower and within {100 * claims.AS_FAST_MARGIN:g} % in mean. A seed "
-              "that never reached 80 % counts at the run's budget.", "",
+              "that never reached 80 % counts at the env steps it trained (shown as >=): a lower bound, so a "
+              "verdict it could overturn reads inconclusive.", "",
               "| claim | verdict | ours |", "|---|---|---|"]
     lines += [f"| {c.text} | {c.verdict} | {c.numbers} |" for c in suite_claims(results, curves)]
     return lines
@@ -445,6 +455,8 @@ def parse_args(argv=None) -> SuiteConfig:
         parser.error(f"--time-budget-min must be a positive number of minutes, got {args.time_budget_min}")
     if args.train_only and args.skip_training:
         parser.error("--train-only and --skip-training exclude each other")
+    if args.train_only and args.export is not None:
+        parser.error("--export needs the report: it does not go with --train-only")
     common = dict(out=args.out, export=args.export, only=only, selection_in_ratio=not args.selection_not_in_ratio,
                   time_budget_min=args.time_budget_min, skip_training=args.skip_training,
                   train_only=args.train_only)

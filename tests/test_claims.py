@@ -43,6 +43,21 @@ def test_verdict_as_fast():
     assert claims.verdict_as_fast([1.0e6], [1.0e6]) == claims.INCONCLUSIVE  # one seed each: no interval
 
 
+def test_censored_values_never_make_a_claim_hold_that_they_could_break():
+    """A seed that never reached the threshold is a lower bound: 'a < b' cannot hold on censored a, cannot
+    fail on censored b; neither run reaching 80 % (both at their trained steps) is inconclusive."""
+    low, high = [1.0, 1.1, 0.9], [3.0, 3.1, 2.9]
+    assert claims.verdict_lower(low, high, a_censored=True) == claims.INCONCLUSIVE
+    assert claims.verdict_lower(low, high, b_censored=True) == claims.HOLDS
+    assert claims.verdict_lower(high, low, b_censored=True) == claims.INCONCLUSIVE
+    assert claims.verdict_lower(high, low, a_censored=True) == claims.FAILS
+    never = [1.2e6, 1.2e6, 1.2e6]
+    assert claims.verdict_as_fast(never, never, True, True) == claims.INCONCLUSIVE
+    assert claims.verdict_as_fast([1.0e6, 1.05e6, 0.95e6], never, False, True) == claims.HOLDS
+    assert claims.verdict_as_fast(never, [0.3e6, 0.31e6, 0.29e6], True, False) == claims.FAILS
+    assert claims.verdict_as_fast(never, [0.3e6, 0.31e6, 0.29e6], True, True) == claims.INCONCLUSIVE
+
+
 def test_steps_to_smooths_over_the_window():
     steps = [100, 200, 300, 400, 500]
     rate = [0.0, 0.9, 0.5, 0.9, 0.9]
@@ -58,7 +73,7 @@ def test_check_claims_reads_the_right_runs_and_metrics():
              ("match", "force_free"): [0.3, 0.2, 0.25]}
     speed = {"match": [1e6, 1.1e6, 0.9e6], "pose": [1e6, 1.05e6, 0.95e6], "hybrid": [3e6, 3e6, 2.9e6]}
     found = {c.text: c for c in claims.check_claims(lambda run, metric: table.get((run, metric), []),
-                                                    lambda run, threshold: speed.get(run, []))}
+                                                    lambda run, threshold: (speed.get(run, []), False))}
     assert found["MATCH breaks less than Pose (10 N, training noise)"].verdict == claims.HOLDS
     assert found["Hybrid-Basic breaks less than Pose (10 N, training noise)"].verdict == claims.INCONCLUSIVE
     assert found["MATCH learns as fast as Pose (env steps to 80 % training success)"].verdict == claims.HOLDS

@@ -54,14 +54,16 @@ def check_interface(env) -> None:
         raise ValueError(f"{type(env).__name__}.config has no integer episode_steps")
 
 
-def check_state(state, where: str) -> None:
-    """ValueError naming the obs / info keys a (possibly abstract or traced) State lacks; `where` names it."""
+def check_state(state, where: str, batched: bool = True) -> None:
+    """ValueError naming the obs / info keys a (possibly abstract or traced) State lacks; `where` names it.
+    batched=False: one env's state, whose info['contact_axes'] must be exactly (3,)."""
     missing_obs = sorted(set(OBS_KEYS) - set(state.obs))
     missing_info = sorted(set(INFO_KEYS) - set(state.info))
     if missing_obs or missing_info:
         raise ValueError(f"{where} state lacks obs keys {missing_obs} / info keys {missing_info}")
-    if state.info["contact_axes"].shape[-1:] != (3,):
-        raise ValueError(f"{where}: info['contact_axes'] has shape {state.info['contact_axes'].shape}, expected (..., 3)")
+    shape = state.info["contact_axes"].shape
+    if (shape[-1:] if batched else shape) != (3,):
+        raise ValueError(f"{where}: info['contact_axes'] has shape {shape}, expected {'(..., 3)' if batched else '(3,)'}")
 
 
 def check_env(env) -> None:
@@ -73,4 +75,4 @@ def check_env(env) -> None:
     action = jax.ShapeDtypeStruct((env.action_size,), jax.numpy.float32)
     stepped = jax.eval_shape(env.step, state, action)
     for name, s in (("reset", state), ("step", stepped)):
-        check_state(s, f"{type(env).__name__}.{name}")
+        check_state(s, f"{type(env).__name__}.{name}", batched=False)
