@@ -59,3 +59,25 @@ def test_eval_render_writes_a_strip_or_explains(tmp_path):
         assert image.std() > 0.02
     else:
         assert "no image strip" in proc.stderr and "MUJOCO_GL" in proc.stderr, proc.stderr[-2000:]
+
+
+@pytest.mark.slow
+def test_record_episode_is_the_evaluation_rollout(env):
+    """The strip's episode is the evaluation rollout of the same key: same steps, and its first frame is
+    the reset state that rollout started from (make_rollout's key split)."""
+    import jax
+
+    from match_jax.evaluation import make_rollout
+
+    def policy(obs, policy_state, key):
+        return env.neutral_action(), policy_state
+
+    key = jax.random.PRNGKey(3)
+    states = render.record_episode(env, policy, None, key, num_steps=6)
+    traj = jax.device_get(make_rollout(env, policy, 6, batched_policy_state=False, record_qpos=True)(key[None], None))
+    reset = jax.jit(env.reset)(jax.random.split(key)[0])
+    np.testing.assert_allclose(states["qpos"][0], np.asarray(reset.pipeline_state.qpos), atol=1e-6)
+    np.testing.assert_allclose(states["qpos"][1:], traj["qpos"][:, 0], atol=1e-6)
+    np.testing.assert_array_equal(states["phase"], traj["phase"][:, 0])
+    np.testing.assert_allclose(states["max_force"], traj["max_force"][:, 0], atol=1e-5)
+    assert states["qpos"].shape == (7, env.mj_model.nq) and states["done"].shape == (6,)
