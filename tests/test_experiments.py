@@ -83,3 +83,31 @@ def test_suite_unbreakable_runs_train_without_breaks(tmp_path):
         assert math.isinf(spec.env.break_force) and experiments.unbreakable(name)
         assert spec.ppo.method == experiments.SUITE[name.removesuffix("_unbreakable")][1]
     assert experiments.run_spec("match", cfg).env.break_force == 10.0 and not experiments.unbreakable("match")
+
+
+def test_an_evaluation_is_reused_only_for_the_checkpoints_it_evaluated(tmp_path, monkeypatch):
+    """evaluate_one reads OUT/eval/<name>.json while the run's best checkpoints are the ones it records,
+    and evaluates again (here: a stub that counts calls) when they changed or the record is missing."""
+    cfg = experiments.parse_args(["--out", str(tmp_path), "--seeds", "2"])
+    run_dir = tmp_path / "runs" / "match"
+    calls = []
+
+    def fake_grid(run_dir, episodes, noise_specs, break_forces):
+        calls.append(episodes)
+        return [{"noise_type": "gaussian", "noise_mm": 1.0, "break_force_n": 10.0}]
+
+    monkeypatch.setattr(experiments, "evaluate_run_grid", fake_grid)
+    assert experiments.evaluate_one(cfg, "match", log=lambda _: None) is None and calls == []  # no checkpoint yet
+    for seed, iteration in ((0, 5), (1, 7)):
+        checkpoints.best_dir(run_dir, seed).mkdir(parents=True)
+        checkpoints.write_best_record(run_dir, seed, {"iteration": iteration})
+    grid = experiments.evaluate_one(cfg, "match", log=lambda _: None)
+    assert calls == [500] and grid[0]["best_iterations"] == [5, 7]
+    assert experiments.evaluate_one(cfg, "match", log=lambda _: None) == grid and calls == [500]  # reused
+    checkpoints.write_best_record(run_dir, 1, {"iteration": 9})  # a new best for seed 1
+    assert experiments.evaluate_one(cfg, "match", log=lambda _: None)[0]["best_iterations"] == [5, 9]
+    assert calls == [500, 500]
+    path = tmp_path / "eval" / "match.json"
+    path.write_text(json.dumps([{"noise_type": "gaussian"}]))  # written before the record existed
+    experiments.evaluate_one(cfg, "match", log=lambda _: None)
+    assert calls == [500, 500, 500]
