@@ -32,7 +32,7 @@ from match_jax import checkpoints, claims, compile_cache, plots
 from match_jax.envs import FPiHConfig
 from match_jax.presets import get_preset
 from match_jax.evaluation import evaluate_run_grid
-from match_jax.training import RunSpec, export_actors, load_spec, read_metrics, train
+from match_jax.training import RunSpec, export_actors, is_exported, load_spec, read_metrics, train
 
 # name -> (label, method, ssl on, training hole noise in mm, training break force in N; inf = unbreakable)
 SUITE = {
@@ -100,7 +100,7 @@ def train_one(cfg: SuiteConfig, name: str, log=print) -> bool:
     spec = run_spec(name, cfg)
     budget = None if cfg.time_budget_min is None else 60.0 * cfg.time_budget_min
     if checkpoints.latest_step(checkpoints.latest_dir(run_dir)) is None:
-        if checkpoints.read_best_record(run_dir, 0) is not None or (run_dir / "actors").exists():
+        if checkpoints.read_best_record(run_dir, 0) is not None or is_exported(run_dir):
             raise ValueError(f"{run_dir} holds best policies but no training state to resume (a copied or "
                              f"exported run): evaluate it with --skip-training, or train into another --out")
         log(f"[train] {name}: starting ({spec.ppo.total_steps:,} steps x {spec.num_seeds} seeds)")
@@ -283,14 +283,10 @@ def _noise_lines(results: dict[str, list[dict]]) -> list[str]:
               " | ".join(f"+-{x:g}" for x in SWEEP_MM) + " |",
               "|---|" + "---|" * (2 * len(SWEEP_MM))]
     for name, grid in breakable.items():
-        cells, cells_unb = [], []
-        for x in SWEEP_MM:
-            for r in grid:
-                if r["noise_type"] == "uniform" and r["noise_mm"] == x:
-                    if r["break_force_n"] is None:
-                        cells_unb.append(_fmt(r, "success_rate", 100))
-                    else:
-                        cells.append(f"{_fmt(r, 'success_rate', 100)} / {_fmt(r, 'break_rate', 100)}")
+        cells = [f"{_fmt(r, 'success_rate', 100)} / {_fmt(r, 'break_rate', 100)}"
+                 for r in (_row(grid, "uniform", x, True) for x in SWEEP_MM) if r is not None]
+        cells_unb = [_fmt(r, "success_rate", 100) for r in (_row(grid, "uniform", x, False) for x in SWEEP_MM)
+                     if r is not None]
         lines.append(f"| {SUITE[name][0]} | " + " | ".join(cells) + " | " + " | ".join(cells_unb) + " |")
     return lines
 
@@ -303,8 +299,8 @@ def _unbreakable_lines(results: dict[str, list[dict]]) -> list[str]:
                   "| method | trained | " + " | ".join(f"+-{x:g} mm" for x in SWEEP_MM) + " |",
                   "|---|---|" + "---|" * len(SWEEP_MM)]
         for name, grid in results.items():
-            cells = [_fmt(r, "success_rate", 100) for x in SWEEP_MM for r in grid
-                     if r["noise_type"] == "uniform" and r["noise_mm"] == x and r["break_force_n"] is None]
+            cells = [_fmt(r, "success_rate", 100) for r in (_row(grid, "uniform", x, False) for x in SWEEP_MM)
+                     if r is not None]
             trained = "unbreakable" if unbreakable(name) else f"{SUITE[name][4]:g} N"
             lines.append(f"| {SUITE[name][0]} | {trained} | " + " | ".join(cells) + " |")
     return lines
