@@ -15,6 +15,7 @@ seeds they are reported as mean +- standard error.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import pathlib
 from typing import Any, Callable
@@ -27,8 +28,8 @@ import numpy as np
 from match_jax import analysis, baselines
 from match_jax.envs import FPiHConfig, FPiHEnv
 from match_jax.envs.fpih import BREAK_SAMPLINGS, break_signal
-from match_jax.ppo import deterministic_policy
-from match_jax.training import batch_mesh, load_policies, load_spec, shard_batch
+from match_jax.ppo import PPOConfig, deterministic_policy
+from match_jax.training import batch_mesh, load_policies, load_spec, programs, shard_batch
 
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
@@ -206,6 +207,30 @@ COLUMNS = ("success_rate", "break_rate", "mean_time_to_success_s", "mean_force_n
 AXIS_COLUMNS = tuple(f"force_selected_{where}_{axis}" for where in ("contact", "free") for axis in "xyz")
 
 
+@functools.lru_cache(maxsize=4)
+def _grid_rollout(ppo: PPOConfig, env_config: FPiHConfig):
+    """(unbreakable env, jitted rollout) of a run configuration's deterministic policy, compiled once per
+    process and shape: (keys (S, E, 2), stacked (params, policy_stats) of S seeds, hole observation
+    offsets (S, L, E, 3) m) -> trajectory dict of (S, L, T, E, ...) arrays, with 'p_force' (T, E, 3) for
+    hybrid methods."""
+    trainer = programs(ppo, env_config).trainer
+    env = FPiHEnv(dataclasses.replace(env_config, break_force=math.inf))  # breaks are applied afterwards
+    hybrid = trainer.distribution.num_selections > 0
+    rollout = make_rollout(env, deterministic_policy(trainer), batched_policy_state=False, record_obs=hybrid)
+
+    def one_level(keys, policy_state, offsets):
+        traj = rollout(keys, policy_state, offsets)
+        if hybrid:  # probability of force control behind every action, (T, E, 3)
+            params, stats = policy_state
+            traj["p_force"] = jax.nn.sigmoid(trainer.policy_head(params, stats, traj.pop("policy_obs")).logits)
+        return traj
+
+    def one_seed(keys, policy_state, offsets):  # offsets (L, E, 3)
+        return jax.vmap(one_level, in_axes=(None, None, 0))(keys, policy_state, offsets)
+
+    return env, jax.jit(jax.vmap(one_seed))
+
+
 def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_levels_mm=None,
                       noise_type: str | None = None, break_forces=None, checkpoint: str = "best",
                       seed: int = 1000, return_trajectories: bool = False, noise_specs=None) -> list[dict]:
@@ -231,22 +256,10 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     break_forces = [spec.env.break_force] if break_forces is None else [float(f) for f in break_forces]
     if any(not f > 0 for f in break_forces) or any(not (x >= 0 and math.isfinite(x)) for x in levels):
         raise ValueError(f"break forces must be > 0 and noise levels finite >= 0, got {break_forces}, {levels}")
-    env = FPiHEnv(dataclasses.replace(spec.env, break_force=math.inf))  # breaks are applied afterwards
     run, policies = load_policies(run_dir, checkpoint)
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[(p["params"], p["policy_stats"]) for p in policies])
     hybrid = run.trainer.distribution.num_selections > 0
-    rollout = make_rollout(env, deterministic_policy(run.trainer), batched_policy_state=False, record_obs=hybrid)
-
-    def one_level(keys, policy_state, offsets):
-        traj = rollout(keys, policy_state, offsets)
-        if hybrid:  # probability of force control behind every action, (T, E, 3)
-            params, stats = policy_state
-            traj["p_force"] = jax.nn.sigmoid(run.trainer.policy_head(params, stats, traj.pop("policy_obs")).logits)
-        return traj
-
-    def one_seed(keys, policy_state, offsets):  # offsets (L, E, 3)
-        return jax.vmap(one_level, in_axes=(None, None, 0))(keys, policy_state, offsets)
-
+    env, grid_rollout = _grid_rollout(spec.ppo, spec.env)
     k_episodes, k_noise = jax.random.split(jax.random.PRNGKey(seed))
     keys = jax.random.split(k_episodes, spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
     shape = (spec.num_seeds, 1, episodes, 3)
@@ -257,8 +270,18 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     offsets = jnp.asarray(levels)[None, :, None, None] / 1000.0 * z  # (S, L, E, 3), m
     mesh = batch_mesh(episodes)  # episodes split over the CPU devices (one per core), if they divide evenly
     keys, offsets = shard_batch(keys, 1, mesh), shard_batch(offsets, 2, mesh)
-    traj = jax.device_get(jax.jit(jax.vmap(one_seed))(keys, stacked, offsets))  # (S, L, T, E, ...)
+    traj = jax.device_get(grid_rollout(keys, stacked, offsets))  # (S, L, T, E, ...)
+    return grid_results(traj, spec, noise_specs, break_forces, env.dt, hybrid, str(run_dir), checkpoint,
+                        return_trajectories)
 
+
+def grid_results(traj: dict, spec, noise_specs, break_forces, policy_dt: float, hybrid: bool, run_dir: str,
+                 checkpoint: str = "best", return_trajectories: bool = False) -> list[dict]:
+    """The result dicts of `evaluate_run_grid` from its unbreakable rollout `traj`, a dict of
+    (seeds, levels, T, episodes, ...) arrays (with 'p_force' (..., 3) for hybrid methods): one per
+    (noise level, break force), each break threshold applied afterwards under both break samplings."""
+    levels, types = [float(level) for level, _ in noise_specs], [kind for _, kind in noise_specs]
+    episodes = int(np.shape(traj["success"])[-1])
     results = []
     for li, (level, noise_type) in enumerate(zip(levels, types)):
         for force in break_forces:
@@ -269,7 +292,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
                 for sampling in BREAK_SAMPLINGS if math.isfinite(force) else (spec.env.break_sampling,):
                     broken = apply_break_threshold(unbroken, force, sampling) \
                         if math.isfinite(force) else unbroken
-                    by_sampling[sampling] = (broken, summarize(episode_metrics(broken, env.dt)))
+                    by_sampling[sampling] = (broken, summarize(episode_metrics(broken, policy_dt)))
                 seed_traj, summary = by_sampling[spec.env.break_sampling]
                 seed_trajs.append(seed_traj)
                 for s in BREAK_SAMPLINGS:  # unbreakable: one rollout, no break under either sampling
@@ -283,7 +306,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
                         seed_traj["in_contact"], seed_traj["p_force"], 1.0 - seed_traj["done_before"]))
                 per_seed.append(summary)
             result = {
-                "run_dir": str(run_dir),
+                "run_dir": run_dir,
                 "method": spec.ppo.method,
                 "ssl_coef": spec.ppo.ssl_beta,
                 "checkpoint": checkpoint,

@@ -18,6 +18,7 @@ from __future__ import annotations
 import concurrent.futures
 import csv
 import dataclasses
+import functools
 import json
 import math
 import pathlib
@@ -137,16 +138,43 @@ def shard_envs(state: TrainState) -> TrainState:
     return rest._replace(env_state=env_state, episode_success=place(state.episode_success))
 
 
+class Programs:
+    """The env, trainer and jitted init / train_chunk of one (PPOConfig, FPiHConfig), built once per
+    process by `programs`: every Run of that configuration (a resume, another run directory, a
+    policy load for evaluation) traces and compiles them once."""
+
+    def __init__(self, ppo: PPOConfig, env_config: FPiHConfig | None):
+        self.env = make_env(ppo, env_config)
+        self.trainer: Trainer = make_trainer(ppo, self.env, batch_mesh(ppo.num_envs))
+        self.init = jax.jit(self.trainer.init)
+        self.chunk = jax.jit(self.trainer.train_chunk, donate_argnums=0)
+        self._shapes: dict[int, TrainState] = {}
+
+    def state_shapes(self, num_seeds: int) -> TrainState:
+        """The abstract TrainState (shapes and dtypes) of `num_seeds` seeds."""
+        if num_seeds not in self._shapes:
+            keys = jax.ShapeDtypeStruct((num_seeds, 2), jax.numpy.uint32)
+            self._shapes[num_seeds] = jax.eval_shape(self.trainer.init, keys)
+        return self._shapes[num_seeds]
+
+
+@functools.lru_cache(maxsize=4)
+def programs(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> Programs:
+    """The Programs of a configuration, shared by all its Runs in this process (the 4 latest kept)."""
+    return Programs(ppo, env_config)
+
+
 class Run:
     """A run directory with its trainer and compiled functions (used by `train` and the tests)."""
 
     def __init__(self, spec: RunSpec, run_dir: str | pathlib.Path):
         self.spec = spec
         self.dir = pathlib.Path(run_dir)
-        self.env = make_env(spec.ppo, spec.env)
-        self.trainer: Trainer = make_trainer(spec.ppo, self.env, batch_mesh(spec.ppo.num_envs))
-        self._init = jax.jit(self.trainer.init)
-        self._chunk = jax.jit(self.trainer.train_chunk, donate_argnums=0)
+        self.programs = programs(spec.ppo, spec.env)
+        self.env = self.programs.env
+        self.trainer: Trainer = self.programs.trainer
+        self._init = self.programs.init
+        self._chunk = self.programs.chunk
 
     def initial_state(self) -> TrainState:
         keys = jax.random.split(jax.random.PRNGKey(self.spec.seed), self.spec.num_seeds)
@@ -156,17 +184,15 @@ class Run:
         return self._chunk(state)
 
     def restore_latest(self) -> TrainState:
-        target = jax.eval_shape(self.trainer.init,
-                                jax.ShapeDtypeStruct((self.spec.num_seeds, 2), jax.numpy.uint32))
-        return checkpoints.restore(checkpoints.latest_dir(self.dir), target)
+        return checkpoints.restore(checkpoints.latest_dir(self.dir), self.programs.state_shapes(self.spec.num_seeds))
 
     def save_latest(self, state: TrainState) -> None:
         checkpoints.save(checkpoints.latest_dir(self.dir), int(np.asarray(state.iteration)[0]), state)
 
     def policy_target(self):
         """Abstract structure of one seed's saved policy: {'params', 'policy_stats', 'critic_stats'}."""
-        target = jax.eval_shape(self.trainer.init, jax.ShapeDtypeStruct((1, 2), jax.numpy.uint32))
-        return jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), _policy_of(target))
+        target = _policy_of(self.programs.state_shapes(1))
+        return jax.tree_util.tree_map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), target)
 
 
 class _CheckpointWriter:

@@ -1,4 +1,9 @@
-"""Shared, session-scoped envs and compiled functions: MJX compiles take 10-50 s on CPU."""
+"""Shared, session-scoped envs and compiled functions: MJX compiles take 10-50 s on CPU.
+
+The default run spreads test files over one pytest-xdist worker per core (`-n auto --dist loadfile`
+in pyproject.toml); XLA compiles on one thread, so two workers halve the wait on two cores. Files are
+handed out heaviest first (HEAVY_FIRST) so that the workers finish together.
+"""
 
 import match_jax  # noqa: F401  (fast XLA CPU flag before JAX starts)
 
@@ -14,6 +19,15 @@ from match_jax.probes import press_down
 # Identical programs compiled by separate Run objects (train -> resume -> train) come from the cache.
 jax.config.update("jax_compilation_cache_dir", str(pathlib.Path(tempfile.gettempdir()) / "match_jax_test_jit_cache"))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+# Test files by their cold-cache duration on 2 cores, longest first; the rest follow in name order.
+HEAVY_FIRST = ("test_training.py", "test_physics.py", "test_env.py", "test_baselines.py", "test_render.py")
+
+
+def pytest_collection_modifyitems(items):
+    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: a file keeps its order
+
 
 # A deterministic placement: hole at its nominal pose, no spawn or observation noise.
 QUIET = dict(hole_xy_range=0.0, hole_yaw_range=0.0, spawn_noise=(0.0, 0.0, 0.0), hand_yaw_range=0.0,

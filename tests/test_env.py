@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
+from match_jax.envs.point_mass import PointMassConfig, PointMassEnv
 
 from conftest import QUIET
 
@@ -48,6 +49,11 @@ def test_full_episodes_with_random_actions_have_no_nan(env, batched):
         ended |= np.asarray(state.done) > 0
     assert ended.all(), "every episode ends by break or time-out within episode_steps"
     assert np.asarray(state.info["steps"]).max() <= env.config.episode_steps
+    holes = np.asarray(reset(jax.random.split(jax.random.PRNGKey(3), batch)).info["hole_pos"])
+    assert np.unique(holes[:, 0]).size == batch, "every episode draws its own hole position"
+    # the last step is the time-out of every env: done, and a truncation unless that step broke the peg
+    assert np.all(np.asarray(state.done) == 1)
+    np.testing.assert_array_equal(np.asarray(state.info["truncation"]), 1.0 - np.asarray(state.info["broken"]))
 
 
 def test_reward_is_highest_at_the_goal(env):
@@ -62,18 +68,20 @@ def test_reward_is_highest_at_the_goal(env):
 
 
 def test_auto_reset_starts_fresh_episodes():
-    env = AutoResetEnv(FPiHEnv(FPiHConfig(control="pose", episode_steps=3)))
+    """AutoResetEnv, the trainer's wrapper, on the cheap PointMassEnv (same info keys and episode
+    bookkeeping as FPiHEnv; FPiHEnv's own time-out is checked in the full-episode test above)."""
+    env = AutoResetEnv(PointMassEnv(PointMassConfig(episode_steps=3)))
     reset, step = jax.jit(env.reset), jax.jit(env.step)
     state = reset(jax.random.split(jax.random.PRNGKey(4), 4))
-    holes = [np.asarray(state.info["hole_pos"])]
+    targets = [np.asarray(state.info["target"])]
     zero = jnp.zeros((4, env.action_size))
     for _ in range(3):
         state = step(state, zero)
     assert np.all(np.asarray(state.done) == 1), "time-out after episode_steps"
     assert np.all(np.asarray(state.info["truncation"]) == 1)
     assert np.all(np.asarray(state.info["steps"]) == 0), "finished envs restart"
-    holes.append(np.asarray(state.info["hole_pos"]))
-    assert not np.allclose(holes[0], holes[1]), "a new episode draws a new hole position"
+    targets.append(np.asarray(state.info["target"]))
+    assert not np.allclose(targets[0], targets[1]), "a new episode draws a new target"
     assert "final_obs" in state.info
     state = step(state, zero)
     assert np.all(np.asarray(state.info["steps"]) == 1) and np.all(np.asarray(state.done) == 0)

@@ -1,18 +1,21 @@
-"""The experiment suite end to end at smoke sizes, and the quickstart notebook's code."""
+"""The experiment suite end to end at smoke sizes, its run specs and its evaluation reuse."""
 
 import match_jax  # noqa: F401
 
 import json
+import math
 import pathlib
 
-from match_jax import checkpoints, experiments
+import numpy as np
+import pytest
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+from match_jax import checkpoints, evaluation, experiments, training
 
-
+@pytest.mark.slow
 def test_smoke_suite_writes_report_and_plots(tmp_path):
-    """Every stage on two of the seven runs (a pose-control and a hybrid one) to keep CI short; the full
-    `--smoke` trains and evaluates all seven the same way."""
+    """Every stage on two of the seven runs (a pose-control and a hybrid one), trained and evaluated on
+    the MJX env at tiny sizes; the full `--smoke` trains and evaluates all seven the same way. The
+    default run checks the same stages with stand-ins for training and the rollout (below)."""
     out = tmp_path / "suite"
     # --train-only trains and stops: no evaluation, no report; the next call finds the run finished
     assert experiments.main(["--smoke", "--out", str(out), "--only", "pose", "--train-only"]) == 0
@@ -51,17 +54,6 @@ def test_smoke_suite_writes_report_and_plots(tmp_path):
     # --skip-training reports what exists: a run never trained is skipped, not an error
     assert experiments.main(["--smoke", "--out", str(out), "--only", "pose,match,vices", "--skip-training"]) == 0
     assert not (out / "runs" / "vices").exists() and "| VICES |" not in (out / "REPORT.md").read_text()
-
-
-def test_quickstart_notebook_runs(tmp_path, monkeypatch):
-    notebook = json.loads((REPO / "notebooks" / "quickstart.ipynb").read_text())
-    code = "\n\n".join("".join(cell["source"]) for cell in notebook["cells"] if cell["cell_type"] == "code")
-    monkeypatch.chdir(tmp_path)
-    namespace = {}
-    exec(compile(code, "quickstart.ipynb", "exec"), namespace)
-    assert namespace["summary"]["finished"]
-    assert namespace["figure_path"].exists()
-    assert namespace["result"]["seeds"] == 2
 
 
 def test_suite_selection_not_in_ratio_applies_to_match_only(tmp_path):
@@ -111,3 +103,121 @@ def test_an_evaluation_is_reused_only_for_the_checkpoints_it_evaluated(tmp_path,
     path.write_text(json.dumps([{"noise_type": "gaussian"}]))  # written before the record existed
     experiments.evaluate_one(cfg, "match", log=lambda _: None)
     assert calls == [500, 500, 500]
+
+
+def _fake_train(calls):
+    """A stand-in for training.train: one 'iteration' per call under a time budget, else all of them;
+    writes what a real run leaves (config, metrics rows, best records, a latest checkpoint)."""
+
+    def fake_train(spec, run_dir, resume=False, progress=True, time_budget_s=None, max_chunks=None):
+        run_dir = pathlib.Path(run_dir)
+        if resume:
+            spec, done = training.load_spec(run_dir), checkpoints.latest_step(checkpoints.latest_dir(run_dir))
+        else:
+            run_dir.mkdir(parents=True)
+            (run_dir / "config.json").write_text(spec.to_json())
+            done = 0
+        per_iteration = spec.ppo.num_envs * spec.ppo.rollout_steps
+        total = math.ceil(spec.ppo.total_steps / per_iteration)
+        stop = min(total, done + 1) if time_budget_s is not None else total
+        with open(run_dir / "metrics.jsonl", "a") as f:
+            for it in range(done + 1, stop + 1):
+                for i in range(spec.num_seeds):
+                    row = {key: 0.1 for key in training.LOGGED}
+                    row.update(iteration=it, env_steps=it * per_iteration, seed_index=i, seed=spec.seed + i,
+                               success_rate=it / total, wall_clock_s=1.0)
+                    f.write(json.dumps(row) + "\n")
+        for i in range(spec.num_seeds):
+            checkpoints.best_dir(run_dir, i).mkdir(parents=True, exist_ok=True)
+            checkpoints.write_best_record(run_dir, i, {"iteration": stop, "success_rate": stop / total})
+        if stop > done:
+            checkpoints.save(checkpoints.latest_dir(run_dir), stop, {"iteration": np.asarray(stop)})
+        calls.append((run_dir.name, resume, stop))
+        return {"finished": stop == total, "iterations": stop, "env_steps_per_seed": stop * per_iteration,
+                "wall_clock_s": 1.0, "best_success_rate": "50%"}
+
+    return fake_train
+
+
+def _fake_grid(calls):
+    """A stand-in for evaluate_run_grid: the real `evaluation.grid_results` on a hand-made rollout (6 steps:
+    episode 0 succeeds at step 3, episode 1 rams the hole with a 12 N spike at step 2 and never succeeds)."""
+
+    def fake_grid(run_dir, episodes, noise_specs, break_forces):
+        spec = training.load_spec(run_dir)
+        S, L, T, E = spec.num_seeds, len(noise_specs), 6, episodes
+        traj = {key: np.zeros((S, L, T, E)) for key in ("success", "engaged", "broken", "in_contact", "mean_force",
+                                                        "max_force", "truncation", "done_before", "done")}
+        traj.update(phase=np.zeros((S, L, T, E), np.int32), position_axes=np.ones((S, L, T, E, 3)),
+                    contact_axes=np.zeros((S, L, T, E, 3)), contact_axes_before=np.zeros((S, L, T, E, 3)),
+                    ee_force=np.zeros((S, L, T, E, 3)))
+        traj["success"][:, :, 3:, 0] = 1.0
+        traj["in_contact"][:, :, 2:, :] = 1.0
+        traj["mean_force"][:, :, 2:, :] = 3.0
+        traj["max_force"][:, :, 2:, :] = 4.0
+        traj["max_force"][:, :, 2, 1] = 12.0
+        traj["phase"][:, :, 2:, :] = 1
+        traj["done"][:, :, -1, :] = 1.0
+        hybrid = spec.ppo.method in ("hybrid", "match")
+        if hybrid:
+            traj["p_force"] = np.where(traj["in_contact"][..., None] > 0, 0.8, 0.05) * np.ones(3)
+        calls.append(run_dir.name)
+        return evaluation.grid_results(traj, spec, noise_specs, break_forces, 1.0 / 15.0, hybrid, str(run_dir))
+
+    return fake_grid
+
+
+def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeypatch):
+    """The suite's stages as the slow smoke test runs them (train-only, time budget, evaluation of finished
+    runs only, report, export, resume, --skip-training), with training and the MJX rollout replaced by
+    stand-ins: everything from the trajectories on (metrics, report, claims, figures) is the real code."""
+    trained, evaluated, exported = [], [], []
+    monkeypatch.setattr(experiments, "train", _fake_train(trained))
+    monkeypatch.setattr(experiments, "evaluate_run_grid", _fake_grid(evaluated))
+
+    def fake_export(run_dir, out):
+        exported.append(pathlib.Path(run_dir).name)
+        (pathlib.Path(out) / "actors").mkdir(parents=True)
+        return pathlib.Path(out)
+
+    monkeypatch.setattr(experiments, "export_actors", fake_export)
+    out, shipped = tmp_path / "suite", tmp_path / "shipped"
+    smoke = ["--smoke", "--out", str(out)]
+    assert experiments.main(smoke + ["--only", "pose", "--train-only"]) == 0
+    assert trained == [("pose", False, 2)] and evaluated == []  # tiny preset: 64 steps of 32 per iteration
+    assert not (out / "eval").exists() and not (out / "REPORT.md").exists()
+    # a budget stops MATCH after its first iteration: pose (finished) is evaluated, MATCH is not
+    assert experiments.main(smoke + ["--only", "pose,match", "--time-budget-min", "1e-4"]) == 0
+    assert trained[1:] == [("pose", True, 2), ("match", False, 1)] and evaluated == ["pose"]  # pose: nothing left
+    table1 = (out / "REPORT.md").read_text().split("## Noise robustness")[0]
+    assert "| Pose |" in table1 and "| MATCH |" not in table1
+    # the same command without the budget resumes MATCH, finishes and evaluates it, and exports the suite
+    assert experiments.main(smoke + ["--only", "pose,match", "--export", str(shipped)]) == 0
+    assert trained[3:] == [("pose", True, 2), ("match", True, 2)]
+    assert evaluated == ["pose", "match"] and exported == ["pose", "match"]  # pose's evaluation is reused
+    report = (out / "REPORT.md").read_text()
+    for label in ("Pose", "MATCH"):
+        assert f"| {label} |" in report
+    assert "Smoke run" in report and "95.4" in report  # the paper's numbers beside ours
+    assert "steps to 80 %" in report and "| MATCH breaks less than Pose (10 N, training noise) |" in report
+    assert (shipped / "REPORT.md").read_text() == report and (shipped / "eval" / "match.json").exists()
+    for name in ("learning_curves.png", "noise_robustness.png", "selection_profile.png"):
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
+    grid = json.loads((out / "eval" / "match.json").read_text())
+    assert len(grid) == 2 * (1 + len(experiments.SWEEP_MM))  # (training noise + sweep) x (break, unbreakable)
+    assert {r["break_force_n"] for r in grid} == {10.0, None} and all(r["best_iterations"] == [2, 2] for r in grid)
+    breakable = next(r for r in grid if r["noise_type"] == "gaussian" and r["break_force_n"] == 10.0)
+    unbreakable = next(r for r in grid if r["noise_type"] == "gaussian" and r["break_force_n"] is None)
+    assert breakable["aggregate"]["break_rate"]["mean"] == pytest.approx(1 / 2)  # the 12 N spike, 2 episodes
+    assert unbreakable["aggregate"]["break_rate"]["mean"] == 0.0
+    assert breakable["aggregate"]["success_rate"]["mean"] == pytest.approx(1 / 2)
+    # resumable: a second call trains and evaluates nothing
+    mtime = (out / "eval" / "match.json").stat().st_mtime
+    assert experiments.main(smoke + ["--only", "match"]) == 0
+    assert trained[5:] == [("match", True, 2)] and evaluated == ["pose", "match"]
+    assert (out / "eval" / "match.json").stat().st_mtime == mtime
+    # --skip-training reports what exists: a run never trained is skipped, not an error
+    assert experiments.main(smoke + ["--only", "pose,match,vices", "--skip-training"]) == 0
+    assert len(trained) == 6 and not (out / "runs" / "vices").exists()
+    assert "| VICES |" not in (out / "REPORT.md").read_text()

@@ -1,5 +1,6 @@
 """Training on fPiH with the tiny preset: every method runs, checkpoints restore bit-identically,
-an interrupted run resumes to the same result, bad input gives one-line errors."""
+an interrupted run resumes to the same result, the quickstart notebook runs, bad input gives one-line
+errors."""
 
 import match_jax  # noqa: F401
 
@@ -91,13 +92,13 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypat
     # eval.py on the run: every seed, the Table 1 columns, selection rates, a JSON document
     import eval as eval_cli
     out = tmp_path / "eval.json"
-    assert eval_cli.main([str(straight), "--episodes", "2", "--json", str(out)]) == 0
+    assert eval_cli.main([str(straight), "--episodes", "4", "--json", str(out)]) == 0  # the notebook's size
     result = json.loads(out.read_text())
     assert result["seeds"] == 2 and len(result["per_seed"]) == 2
     for column in ("success_rate", "break_rate", "force_selected_free", "p_force_free"):
         assert column in result["aggregate"]
     assert 0.0 < result["aggregate"]["p_force_free"]["mean"] < 0.2  # barely trained: ~0.07 at initialisation
-    assert sum(result["selection_profile"]["episodes"]) >= 4
+    assert sum(result["selection_profile"]["episodes"]) >= 8
     # a time budget that is already spent still runs one chunk, then stops, resumable
     budgeted = train(None, split, resume=True, progress=False, time_budget_s=1e-3)
     assert budgeted["iterations"] == 3 and not budgeted["finished"]
@@ -114,6 +115,17 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypat
         with pytest.raises(KeyboardInterrupt):
             train(run_spec, run_dir, resume=resume, progress=False)
         assert expected in capsys.readouterr().out
+
+
+def test_quickstart_notebook_runs(tmp_path, monkeypatch):
+    notebook = json.loads((REPO / "notebooks" / "quickstart.ipynb").read_text())
+    code = "\n\n".join("".join(cell["source"]) for cell in notebook["cells"] if cell["cell_type"] == "code")
+    monkeypatch.chdir(tmp_path)
+    namespace = {}
+    exec(compile(code, "quickstart.ipynb", "exec"), namespace)
+    assert namespace["summary"]["finished"]
+    assert namespace["figure_path"].exists()
+    assert namespace["result"]["seeds"] == 2
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):

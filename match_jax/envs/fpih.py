@@ -44,6 +44,7 @@ class FPiHConfig:
 
     control: str = "hybrid"  # 'pose' | 'vices' | 'hybrid'
     scene_file: str = ""  # MJCF path; "" = the packaged fpih_scene.xml
+    physics_backend: str = "jax"  # 'jax' (MJX) | 'warp' (MuJoCo Warp; pip install "match_jax[warp]")
     controller: ControllerConfig = ControllerConfig()
     actions: ActionConfig = ActionConfig()
     # Timing: policy 15 Hz, control law 120 Hz, physics `physics_substeps` x 120 Hz.
@@ -85,6 +86,8 @@ class FPiHConfig:
 
     def __post_init__(self):
         get_action_space(self.control)  # raises on an unknown controller name
+        if self.physics_backend not in sim.PHYSICS_BACKENDS:
+            raise ValueError(f"physics_backend must be one of {sim.PHYSICS_BACKENDS}, got {self.physics_backend!r}")
         if not (isinstance(self.break_force, (int, float)) and self.break_force > 0):
             raise ValueError(f"break_force must be > 0 N (math.inf for unbreakable), got {self.break_force!r}")
         for name in ("control_substeps", "physics_substeps", "episode_steps", "ik_iterations"):
@@ -145,9 +148,10 @@ class FPiHEnv(BraxEnv):
     def __init__(self, config: FPiHConfig = FPiHConfig()):
         self.config = config
         self.action_space: ActionSpace = get_action_space(config.control)
-        self.mj_model = sim.load_model(config.physics_substeps, config.control_dt, config.scene_file or None)
+        self.mj_model = sim.load_model(config.physics_substeps, config.control_dt, config.scene_file or None,
+                                       config.physics_backend)
         self.ids = sim.SceneIds(self.mj_model)
-        self.mjx_model = mjx.put_model(self.mj_model)
+        self.mjx_model = sim.put_model(self.mj_model, config.physics_backend)
         self._hole_top_offset = float(self.mj_model.site_pos[self.ids.hole_top_site][2])
         self._peg_tip_below_ee = self._nominal_peg_tip_below_ee()
         self._home_qpos = self._nominal_qpos()
@@ -248,7 +252,7 @@ class FPiHEnv(BraxEnv):
         hand_yaw = jax.random.uniform(k_hand, (), minval=-cfg.hand_yaw_range, maxval=cfg.hand_yaw_range)
         hole_obs_offset = self._noise(k_obs, cfg.hole_obs_noise, cfg.hole_obs_noise_type, (3,))
 
-        data = mjx.make_data(self.mjx_model)
+        data = sim.make_data(self.mj_model, self.mjx_model)
         half = 0.5 * hole_yaw
         data = data.replace(
             mocap_pos=data.mocap_pos.at[self.ids.hole_mocap].set(hole_pos),
