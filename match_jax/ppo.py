@@ -204,6 +204,10 @@ def initial_mean_bias(config: PPOConfig, env) -> tuple[float, ...]:
 def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv:
     """The fPiH env of a method; `env_config` (task settings) must use the method's controller."""
     env_config = env_config or FPiHConfig(control=config.control)
+    if env_config.physics_backend != "jax":
+        raise ValueError(f"training runs on physics_backend 'jax', got {env_config.physics_backend!r}: MuJoCo Warp's "
+                         "batched contact buffers do not fit the trainer's auto-reset and env sharding yet; use "
+                         "the Warp env through jit(vmap(env.reset / env.step))")
     if env_config.control != config.control:
         raise ValueError(f"method {config.method!r} needs control={config.control!r}, env has {env_config.control!r}")
     return FPiHEnv(env_config)

@@ -17,17 +17,19 @@ import numpy as np
 
 with contextlib.redirect_stdout(io.StringIO()):  # mujoco.mjx prints a notice when warp is absent
     from mujoco import mjx
+    from mujoco.mjx import warp as _mjx_warp
     from mujoco.mjx._src import solver as _mjx_solver
     from mujoco.mjx._src import support as _mjx_support
-    from mujoco.mjx import warp as _mjx_warp
 
 from match_jax.controllers.osc import ArmDynamics
 
 SCENE_FILE = "fpih_scene.xml"
 ARM_JOINTS = 7
 PHYSICS_BACKENDS = ("jax", "warp")
-# MuJoCo Warp allocates contacts for all the worlds of a batch together (naconmax) and constraint rows
-# per world (njmax). One world of the scene has at most ~10 contacts; these bound a batch of 64 worlds.
+# MuJoCo Warp's buffer sizes. Broadphase pairs and contacts: naconmax for all the worlds of a batch
+# together; one world of this scene peaked at 8 pairs and 4 contacts (MuJoCo Warp's own allowance for
+# it: 48). Constraint rows: njmax per world (peak 16). On overflow MuJoCo Warp prints a warning and
+# drops the excess.
 WARP_NACONMAX = 2048
 WARP_NJMAX = 256
 PEG_FORCE_SENSORS = ("peg_force", "peg_rim_proxy_force")
@@ -144,7 +146,7 @@ def peg_contact_force(m: mjx.Model, d: mjx.Data, peg_geoms: tuple[int, ...]) -> 
     Pressing down gives a negative z component. On MuJoCo Warp: `peg_force_sensors`.
     """
     if m.impl == mjx.Impl.WARP:
-        return peg_force_sensors(d)
+        return peg_force_sensors(m, d)
     forces, ids = _mjx_support.contact_force_dim(m, d, 3)
     contact = d._impl.contact
     frames = contact.frame[ids]
@@ -152,13 +154,13 @@ def peg_contact_force(m: mjx.Model, d: mjx.Data, peg_geoms: tuple[int, ...]) -> 
     return jnp.einsum("c,ci,cij->j", on_env, forces[:, :3], frames)
 
 
-def peg_force_sensors(d: mjx.Data) -> jax.Array:
-    """`peg_contact_force` from PEG_FORCE_SENSORS (N, world; the sum of their readings).
+def peg_force_sensors(m: mjx.Model, d: mjx.Data) -> jax.Array:
+    """`peg_contact_force` from PEG_FORCE_SENSORS, the model's last sensors (N, world; their sum).
 
     The sensor's net force of a geom's contacts has the sign of `peg_contact_force` when the peg geom
     is geom1 of every contact pair, as in the scene: the force the peg applies to the environment.
     """
-    return d.sensordata[0:3] + d.sensordata[3:6]
+    return sum(d.sensordata[adr:adr + 3] for adr in m.sensor_adr[-len(PEG_FORCE_SENSORS):])
 
 
 def controlled_step(m: mjx.Model, d: mjx.Data, torque_fn) -> mjx.Data:

@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
-
 from conftest import QUIET
+
 from match_jax import sim
 from match_jax.controllers.osc import ArmDynamics, hybrid_torque
 from match_jax.envs import FPiHConfig, FPiHEnv
@@ -25,6 +25,15 @@ def test_unknown_backend_is_rejected():
 def test_warp_backend_without_warp_says_how_to_install():
     with pytest.raises(ImportError, match=r'pip install "match_jax\[warp\]"') as err:
         FPiHEnv(FPiHConfig(physics_backend="warp"))
+    assert "\n" not in str(err.value)
+
+
+def test_training_on_warp_is_a_one_line_error():
+    from match_jax.ppo import make_env
+    from match_jax.presets import get_preset
+
+    with pytest.raises(ValueError, match="training runs on physics_backend 'jax', got 'warp'") as err:
+        make_env(get_preset("tiny", method="pose"), FPiHConfig(control="pose", physics_backend="warp"))
     assert "\n" not in str(err.value)
 
 
@@ -65,10 +74,20 @@ def _rollout(env: FPiHEnv, actions: np.ndarray) -> dict[str, np.ndarray]:
     return {k: np.swapaxes(np.asarray(v), 0, 1) for k, v in run(jnp.asarray(actions)).items()}
 
 
+def _c_peg_force(model, d, peg_geoms) -> np.ndarray:
+    """`sim.peg_contact_force` in MuJoCo C: the force (N, world) the peg applies to the environment."""
+    total, wrench = np.zeros(3), np.zeros(6)
+    for i in range(d.ncon):
+        mujoco.mj_contactForce(model, d, i, wrench)
+        on_env = 1.0 if d.contact[i].geom1 in peg_geoms else -1.0
+        total += on_env * d.contact[i].frame.reshape(3, 3).T @ wrench[:3]
+    return total
+
+
 def _rollout_c(env: FPiHEnv, actions: np.ndarray) -> dict[str, np.ndarray]:
-    """The same episodes in MuJoCo C (float64): the env's targets and control law, C dynamics and the
-    peg's contact-force sensors."""
-    model = sim.load_model(env.config.physics_substeps, env.config.control_dt, None, "warp")
+    """The same episodes in MuJoCo C (float64): the env's targets and control law, C dynamics, the peg's
+    force summed over C's contacts."""
+    model = env.mj_model
     ids, low, high = env.ids, model.actuator_ctrlrange[:, 0], model.actuator_ctrlrange[:, 1]
     s0 = jax.jit(env.reset)(jax.random.PRNGKey(0))
     target_fn = jax.jit(lambda site_xpos, site_xmat, info, action: env._control_target(
@@ -82,8 +101,8 @@ def _rollout_c(env: FPiHEnv, actions: np.ndarray) -> dict[str, np.ndarray]:
         d.mocap_pos[:], d.mocap_quat[:] = np.asarray(s0.pipeline_state.mocap_pos), np.asarray(s0.pipeline_state.mocap_quat)
         mujoco.mj_kinematics(model, d)
         info, force = dict(s0.info), np.zeros(3)
-        for key in out:
-            out[key].append([])
+        for series in out.values():
+            series.append([])
         for action in episode:
             target = target_fn(d.site_xpos.copy(), d.site_xmat.reshape(-1, 3, 3).copy(), info, action)
             info["prev_action"] = smooth_fn(action, info["prev_action"])
@@ -99,7 +118,7 @@ def _rollout_c(env: FPiHEnv, actions: np.ndarray) -> dict[str, np.ndarray]:
                                   ee_rot=d.site_xmat[ids.ee_site].reshape(3, 3).copy(), ee_force=force)
                 d.ctrl[:] = np.asarray(torque_fn(dyn, target))
                 mujoco.mj_step(model, d)
-                force = d.sensordata[0:3] + d.sensordata[3:6]
+                force = _c_peg_force(model, d, ids.peg_geoms)
                 max_force = max(max_force, float(np.linalg.norm(force)))
             mujoco.mj_kinematics(model, d)
             for key, value in (("tip", d.site_xpos[ids.peg_tip_site].copy()), ("qpos", d.qpos.copy()),
