@@ -201,6 +201,14 @@ def initial_mean_bias(config: PPOConfig, env) -> tuple[float, ...]:
     return tuple(bias)
 
 
+def initial_stats(size: int) -> running_statistics.RunningStatisticsState:
+    """Brax's observation normaliser for `size` features, its std_eps a float32 array instead of a
+    weakly typed Python float: the initial TrainState then has the types a chunk returns, so the jitted
+    chunk compiles once for a run, not once for the initial state and again for every later one."""
+    stats = running_statistics.init_state(specs.Array((size,), jnp.float32))
+    return stats.replace(std_eps=jnp.asarray(stats.std_eps, jnp.float32))
+
+
 def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv:
     """The fPiH env of a method; `env_config` (task settings) must use the method's controller."""
     env_config = env_config or FPiHConfig(control=config.control)
@@ -276,8 +284,8 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
         return TrainState(
             params=params,
             opt_state=optimizer.init(params),
-            policy_stats=running_statistics.init_state(specs.Array((policy_size,), jnp.float32)),
-            critic_stats=running_statistics.init_state(specs.Array((critic_size,), jnp.float32)),
+            policy_stats=initial_stats(policy_size),
+            critic_stats=initial_stats(critic_size),
             env_state=env_state,
             episode_success=jnp.zeros(config.num_envs),
             key=key,

@@ -42,13 +42,18 @@ def test_each_method_trains_and_checkpoints_restore_bit_identically(method, tmp_
     overrides = dict(method="match", ssl_phase="after") if method == "match-ssl-after" else dict(method=method)
     ppo = get_preset("tiny", **overrides)
     trainer = make_trainer(ppo, PointMassEnv(PointMassConfig(control=ppo.control)))
-    state, metrics = jax.jit(trainer.train_chunk)(jax.jit(trainer.init)(jax.random.split(jax.random.PRNGKey(0), 2)))
+    initial = jax.jit(trainer.init)(jax.random.split(jax.random.PRNGKey(0), 2))
+    state, metrics = jax.jit(trainer.train_chunk)(initial)
     for key in ("loss", "policy_loss", "value_loss", "entropy"):
         assert np.all(np.isfinite(np.asarray(metrics[key]))), key
     assert int(state.iteration[0]) == 1 and int(state.env_steps[0]) == 4 * 8
     checkpoints.save(tmp_path / "latest", 1, state)
     target = jax.eval_shape(trainer.init, jax.ShapeDtypeStruct((2, 2), jax.numpy.uint32))
-    assert _leaves_equal(checkpoints.restore(tmp_path / "latest", target), state)
+    restored = checkpoints.restore(tmp_path / "latest", target)
+    assert _leaves_equal(restored, state)
+    # a fresh state, a chunk's output and a restored one have the same types: one compile of the chunk
+    types = lambda tree: jax.tree_util.tree_map(lambda x: (x.shape, x.dtype, x.weak_type), tree)  # noqa: E731
+    assert types(initial) == types(state) == types(restored)
 
 
 def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypatch, capsys):
