@@ -29,7 +29,7 @@ from match_jax import analysis, baselines
 from match_jax.envs import FPiHConfig, FPiHEnv
 from match_jax.envs.fpih import BREAK_SAMPLINGS, break_signal
 from match_jax.ppo import PPOConfig, deterministic_policy
-from match_jax.training import batch_mesh, load_policies, load_spec, programs, shard_batch
+from match_jax.training import batch_mesh, load_policies, load_spec, program_config, programs, shard_batch
 
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
@@ -259,7 +259,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     run, policies = load_policies(run_dir, checkpoint)
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[(p["params"], p["policy_stats"]) for p in policies])
     hybrid = run.trainer.distribution.num_selections > 0
-    env, grid_rollout = _grid_rollout(spec.ppo, spec.env)
+    env, grid_rollout = _grid_rollout(program_config(spec.ppo), spec.env)
     k_episodes, k_noise = jax.random.split(jax.random.PRNGKey(seed))
     keys = jax.random.split(k_episodes, spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
     shape = (spec.num_seeds, 1, episodes, 3)

@@ -158,10 +158,21 @@ class Programs:
         return self._shapes[num_seeds]
 
 
+def program_config(ppo: PPOConfig) -> PPOConfig:
+    """`ppo` with the step budget set to a fixed value: the budget only sets how many iterations the host
+    runs, so configurations that differ in it alone share their compiled programs."""
+    return dataclasses.replace(ppo, total_steps=PPOConfig.total_steps)
+
+
 @functools.lru_cache(maxsize=4)
-def programs(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> Programs:
-    """The Programs of a configuration, shared by all its Runs in this process (the 4 latest kept)."""
+def _programs(ppo: PPOConfig, env_config: FPiHConfig | None) -> Programs:
     return Programs(ppo, env_config)
+
+
+def programs(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> Programs:
+    """The Programs of a configuration (any step budget), shared by all its Runs in this process (the 4
+    latest kept)."""
+    return _programs(program_config(ppo), env_config)
 
 
 class Run:

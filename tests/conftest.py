@@ -21,7 +21,7 @@ jax.config.update("jax_compilation_cache_dir", str(pathlib.Path(tempfile.gettemp
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 # Test files by their cold-cache duration on 2 cores, longest first; the rest follow in name order.
-HEAVY_FIRST = ("test_training.py", "test_physics.py", "test_env.py", "test_baselines.py", "test_render.py")
+HEAVY_FIRST = ("test_training.py", "test_physics.py", "test_env.py", "test_baselines.py")
 
 
 def pytest_collection_modifyitems(items):

@@ -41,6 +41,30 @@ def test_render_frames_or_clear_message(env):
         render.render_frames(env, _states(env), [0], width=10_000, height=96)
 
 
+def test_eval_picks_egl_only_when_headless_and_unset(monkeypatch):
+    """eval.py's GL choice (the slow test below runs it end to end): EGL on headless Linux with libEGL,
+    nothing when a display exists, MUJOCO_GL is set or libEGL is missing."""
+    import ctypes.util
+
+    import eval as eval_cli
+
+    def choice(environ, egl):
+        for key in ("MUJOCO_GL", "DISPLAY"):
+            monkeypatch.delenv(key, raising=False)
+        for key, value in environ.items():
+            monkeypatch.setenv(key, value)
+        monkeypatch.setattr(ctypes.util, "find_library", lambda name: "libEGL.so.1" if egl and name == "EGL" else None)
+        eval_cli.choose_gl_backend()
+        return os.environ.get("MUJOCO_GL")
+
+    monkeypatch.setattr(sys, "platform", "linux")
+    assert choice({}, egl=True) == "egl"
+    assert choice({}, egl=False) is None
+    assert choice({"DISPLAY": ":0"}, egl=True) is None
+    assert choice({"MUJOCO_GL": "osmesa"}, egl=True) == "osmesa"
+
+
+@pytest.mark.slow
 def test_eval_render_writes_a_strip_or_explains(tmp_path):
     """eval.py --render picks EGL on a headless machine that has libEGL: a PNG strip of a real episode;
     without it, a one-line message and exit code 0, never a traceback."""
