@@ -11,6 +11,19 @@ import pytest
 
 from match_jax import checkpoints, evaluation, experiments, training
 
+def _check_report_and_export(out, shipped):
+    """The report of a pose + MATCH suite beside the paper's numbers, its figures, and its export."""
+    report = (out / "REPORT.md").read_text()
+    for label in ("Pose", "MATCH"):
+        assert f"| {label} |" in report
+    assert "Smoke run" in report and "95.4" in report  # the paper's numbers beside ours
+    assert "steps to 80 %" in report and "| MATCH breaks less than Pose (10 N, training noise) |" in report
+    assert (shipped / "REPORT.md").read_text() == report and (shipped / "eval" / "match.json").exists()
+    for name in ("learning_curves.png", "noise_robustness.png", "selection_profile.png"):
+        data = (out / name).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
+
+
 @pytest.mark.slow
 def test_smoke_suite_writes_report_and_plots(tmp_path):
     """Every stage on two of the seven runs (a pose-control and a hybrid one), trained and evaluated on
@@ -29,19 +42,11 @@ def test_smoke_suite_writes_report_and_plots(tmp_path):
     # the same command without the budget finishes MATCH, evaluates it, and exports the suite
     shipped = tmp_path / "shipped"
     assert experiments.main(["--smoke", "--out", str(out), "--only", "pose,match", "--export", str(shipped)]) == 0
-    report = (out / "REPORT.md").read_text()
-    for label in ("Pose", "MATCH"):
-        assert f"| {label} |" in report
-    assert "Smoke run" in report and "95.4" in report  # the paper's numbers beside ours
-    assert "steps to 80 %" in report and "| MATCH breaks less than Pose (10 N, training noise) |" in report
-    assert (shipped / "REPORT.md").read_text() == report and (shipped / "eval" / "match.json").exists()
+    _check_report_and_export(out, shipped)
     for name in ("pose", "match"):
         assert sorted(p.name for p in (shipped / "runs" / name / "actors").iterdir()) == [
             "seed0.json", "seed0.msgpack", "seed1.json", "seed1.msgpack"]
         assert not (shipped / "runs" / name / "checkpoints").exists()
-    for name in ("learning_curves.png", "noise_robustness.png", "selection_profile.png"):
-        data = (out / name).read_bytes()
-        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
     grid = json.loads((out / "eval" / "match.json").read_text())
     assert len(grid) == 2 * (1 + len(experiments.SWEEP_MM))  # (training noise + sweep) x (break, unbreakable)
     assert {r["break_force_n"] for r in grid} == {10.0, None}
@@ -195,15 +200,7 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     assert experiments.main(smoke + ["--only", "pose,match", "--export", str(shipped)]) == 0
     assert trained[3:] == [("pose", True, 2), ("match", True, 2)]
     assert evaluated == ["pose", "match"] and exported == ["pose", "match"]  # pose's evaluation is reused
-    report = (out / "REPORT.md").read_text()
-    for label in ("Pose", "MATCH"):
-        assert f"| {label} |" in report
-    assert "Smoke run" in report and "95.4" in report  # the paper's numbers beside ours
-    assert "steps to 80 %" in report and "| MATCH breaks less than Pose (10 N, training noise) |" in report
-    assert (shipped / "REPORT.md").read_text() == report and (shipped / "eval" / "match.json").exists()
-    for name in ("learning_curves.png", "noise_robustness.png", "selection_profile.png"):
-        data = (out / name).read_bytes()
-        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
+    _check_report_and_export(out, shipped)
     grid = json.loads((out / "eval" / "match.json").read_text())
     assert len(grid) == 2 * (1 + len(experiments.SWEEP_MM))  # (training noise + sweep) x (break, unbreakable)
     assert {r["break_force_n"] for r in grid} == {10.0, None} and all(r["best_iterations"] == [2, 2] for r in grid)
