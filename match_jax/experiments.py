@@ -344,9 +344,11 @@ def _learning_lines(curves: dict[str, dict]) -> list[str]:
             half = claims.ci95_halfwidth(reached)
             cells.append(f"{np.mean(reached) / 1e6:.2f}M" + ("" if math.isnan(half) else f" +- {half / 1e6:.2f}M")
                          + ("" if len(reached) == len(rate) else f" ({len(reached)}/{len(rate)} seeds)"))
-        tail = np.nanmean(rate[:, -c["window"]:]) if rate.size else float("nan")
+        last = rate[:, -c["window"]:]
+        tail = float(np.nanmean(last)) if np.isfinite(last).any() else float("nan")  # NaN: no episode ended yet
+        best = float(np.nanmax(rate)) if np.isfinite(rate).any() else float("nan")
         lines.append(f"| {SUITE[name][0]} | {int(c['env_steps'][-1]):,} | " + " | ".join(cells)
-                     + f" | {100 * tail:.1f} | {100 * np.nanmax(rate):.1f} |")
+                     + f" | {100 * tail:.1f} | {100 * best:.1f} |")
     return lines
 
 
