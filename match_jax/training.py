@@ -184,15 +184,13 @@ class Run:
         self.programs = programs(spec.ppo, spec.env)
         self.env = self.programs.env
         self.trainer: Trainer = self.programs.trainer
-        self._init = self.programs.init
-        self._chunk = self.programs.chunk
 
     def initial_state(self) -> TrainState:
         keys = jax.random.split(jax.random.PRNGKey(self.spec.seed), self.spec.num_seeds)
-        return self._init(keys)
+        return self.programs.init(keys)
 
     def chunk(self, state: TrainState):
-        return self._chunk(state)
+        return self.programs.chunk(state)
 
     def restore_latest(self) -> TrainState:
         return checkpoints.restore(checkpoints.latest_dir(self.dir), self.programs.state_shapes(self.spec.num_seeds))
