@@ -28,8 +28,8 @@ import numpy as np
 from match_jax import analysis, baselines
 from match_jax.envs import FPiHConfig, FPiHEnv
 from match_jax.envs.fpih import BREAK_SAMPLINGS, break_signal
-from match_jax.ppo import PPOConfig, deterministic_policy
-from match_jax.training import batch_mesh, load_policies, load_spec, program_config, programs, shard_batch
+from match_jax.ppo import PPOConfig, deterministic_policy, make_trainer
+from match_jax.training import batch_mesh, load_policies, load_spec, shard_batch
 
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
@@ -207,14 +207,25 @@ COLUMNS = ("success_rate", "break_rate", "mean_time_to_success_s", "mean_force_n
 AXIS_COLUMNS = tuple(f"force_selected_{where}_{axis}" for where in ("contact", "free") for axis in "xyz")
 
 
+def evaluation_config(ppo: PPOConfig, env_config: FPiHConfig) -> tuple[PPOConfig, FPiHConfig]:
+    """What a run's evaluation program depends on: the method, the policy network and the env, with the
+    settings the grid replaces set to fixed values: learning settings and SSL (training only), break
+    force (the rollout is unbreakable, thresholds are applied afterwards) and hole-observation noise (the
+    grid sets every episode's offset). Runs that differ only in those share one compiled rollout."""
+    policy = PPOConfig(method=ppo.method, network=ppo.network)
+    env = dataclasses.replace(env_config, break_force=math.inf, hole_obs_noise=FPiHConfig.hole_obs_noise,
+                              hole_obs_noise_type=FPiHConfig.hole_obs_noise_type)
+    return policy, env
+
+
 @functools.lru_cache(maxsize=4)
 def _grid_rollout(ppo: PPOConfig, env_config: FPiHConfig):
     """(unbreakable env, jitted rollout) of a run configuration's deterministic policy, compiled once per
-    process and shape: (keys (S, E, 2), stacked (params, policy_stats) of S seeds, hole observation
-    offsets (S, L, E, 3) m) -> trajectory dict of (S, L, T, E, ...) arrays, with 'p_force' (T, E, 3) for
-    hybrid methods."""
-    trainer = programs(ppo, env_config).trainer
-    env = FPiHEnv(dataclasses.replace(env_config, break_force=math.inf))  # breaks are applied afterwards
+    process and shape (`evaluation_config`): (keys (S, E, 2), stacked (params, policy_stats) of S seeds, hole
+    observation offsets (S, L, E, 3) m) -> trajectory dict of (S, L, T, E, ...) arrays, with 'p_force'
+    (T, E, 3) for hybrid methods."""
+    env = FPiHEnv(env_config)
+    trainer = make_trainer(ppo, env)  # for its policy head and distribution; nothing of it is compiled
     hybrid = trainer.distribution.num_selections > 0
     rollout = make_rollout(env, deterministic_policy(trainer), batched_policy_state=False, record_obs=hybrid)
 
@@ -259,7 +270,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     run, policies = load_policies(run_dir, checkpoint)
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[(p["params"], p["policy_stats"]) for p in policies])
     hybrid = run.trainer.distribution.num_selections > 0
-    env, grid_rollout = _grid_rollout(program_config(spec.ppo), spec.env)
+    env, grid_rollout = _grid_rollout(*evaluation_config(spec.ppo, spec.env))
     k_episodes, k_noise = jax.random.split(jax.random.PRNGKey(seed))
     keys = jax.random.split(k_episodes, spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
     shape = (spec.num_seeds, 1, episodes, 3)

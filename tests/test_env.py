@@ -56,6 +56,26 @@ def test_full_episodes_with_random_actions_have_no_nan(env, batched):
     np.testing.assert_array_equal(np.asarray(state.info["truncation"]), 1.0 - np.asarray(state.info["broken"]))
 
 
+def test_hole_observation_offset_replaces_the_resets_own_draw(env, batched):
+    """`set_hole_obs_offset` (the evaluation grid's noise levels) determines the hole part of the policy
+    observation alone: the reset's own offset gives back the reset observation exactly, another offset
+    shifts only the hole-relative position, by the difference."""
+    reset, _ = batched
+    state = reset(jax.random.split(jax.random.PRNGKey(5), 4))
+    set_offset = jax.jit(jax.vmap(env.set_hole_obs_offset))
+    same = set_offset(state, state.info["hole_obs_offset"])
+    np.testing.assert_array_equal(np.asarray(same.obs["state"]), np.asarray(state.obs["state"]))
+    offset = jnp.tile(jnp.array([0.004, -0.003, 0.001]), (4, 1))
+    moved = set_offset(state, offset)
+    delta = np.asarray(moved.obs["state"] - state.obs["state"])
+    hole_rel = env.policy_obs_layout["ee_rel_hole"]
+    np.testing.assert_allclose(delta[:, hole_rel], -np.asarray(offset - state.info["hole_obs_offset"]), atol=1e-6)
+    rest = np.ones(delta.shape[1], bool)
+    rest[hole_rel] = False
+    np.testing.assert_array_equal(delta[:, rest], 0.0)
+    np.testing.assert_array_equal(np.asarray(moved.obs["privileged_state"]), np.asarray(state.obs["privileged_state"]))
+
+
 def test_reward_is_highest_at_the_goal(env):
     """Keypoint reward: near its maximum (1/6 + 1/4 + 1/2) with the peg at the bottom, small far away."""
     state = env.reset(jax.random.PRNGKey(0))

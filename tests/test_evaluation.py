@@ -156,3 +156,30 @@ def test_break_threshold_from_an_unbreakable_rollout():
     np.testing.assert_array_equal(m["success"], [0, 1])
     np.testing.assert_array_equal(m["broken"], [1, 0])
     assert episode_metrics(apply_break_threshold(traj, 15.0), DT)["broken"].sum() == 0
+
+
+def test_runs_differing_in_break_force_noise_or_ssl_share_one_evaluation_program():
+    """The evaluation rollout is unbreakable and sets every episode's hole-observation offset, so the
+    suite's MATCH, MATCH (no SSL) and MATCH (unbreakable) runs, and Pose and Pose at 2.5 mm, evaluate
+    with one compiled program per method; another method, network or controller gets its own."""
+    import dataclasses
+    import math
+
+    from match_jax.envs import FPiHConfig
+    from match_jax.evaluation import _grid_rollout, evaluation_config
+    from match_jax.networks import NetworkConfig
+    from match_jax.ppo import PPOConfig
+
+    hybrid = FPiHConfig(control="hybrid")
+    match = evaluation_config(PPOConfig(method="match"), hybrid)
+    for ppo, env in [(PPOConfig(method="match", ssl_coef=0.0, learning_rate=1e-5, total_steps=10), hybrid),
+                     (PPOConfig(method="match"), dataclasses.replace(hybrid, break_force=math.inf)),
+                     (PPOConfig(method="match", selection_in_ratio=False),
+                      dataclasses.replace(hybrid, hole_obs_noise=0.0025, hole_obs_noise_type="uniform"))]:
+        assert evaluation_config(ppo, env) == match
+    assert _grid_rollout(*evaluation_config(PPOConfig(method="match", ssl_coef=0.0), hybrid)) is _grid_rollout(*match)
+    for ppo, env in [(PPOConfig(method="hybrid"), hybrid),
+                     (PPOConfig(method="match", network=NetworkConfig(64, 1, 64, 1)), hybrid),
+                     (PPOConfig(method="match"), dataclasses.replace(hybrid, episode_steps=100))]:
+        assert evaluation_config(ppo, env) != match
+    assert evaluation_config(PPOConfig(method="pose"), FPiHConfig(control="pose")) != match
