@@ -1,7 +1,9 @@
 """Losses of the PPO update, module-level and unit-tested: the clipped PPO objective with the value
-loss, and MATCH's supervised selection loss (SSL)."""
+loss, and MATCH's supervised selection loss (SSL); with the counts behind the selection metrics."""
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -23,14 +25,53 @@ def selection_loss(logits: jax.Array, contact_label: jax.Array, contact_only: bo
     return (per_sample * weight).sum() / jnp.maximum(weight.sum(), 1.0)
 
 
+class SelectionCounts(NamedTuple):
+    """Sums over a batch behind the p_force metrics (`selection_rates`); p_i = sigmoid(logit_i) is the
+    probability of force control on axis i, psi_i the axis's 0/1 contact label. They add up over
+    minibatches, so the rates of a whole update are ratios of the summed counts."""
+
+    p_sum: jax.Array  # sum over samples of the axis-mean p
+    samples: jax.Array
+    p_contact_sum: jax.Array  # the same over samples with some axis in contact
+    contact_samples: jax.Array
+    p_axis_contact_sum: jax.Array  # sum over samples and axes of p_i psi_i
+    axis_contacts: jax.Array  # sum over samples and axes of psi_i
+
+
+def selection_counts(logits: jax.Array, contact_label: jax.Array) -> SelectionCounts:
+    """`SelectionCounts` of a batch: logits (N, 3) selection log-odds, contact_label (N, 3) 0/1."""
+    p_each = jax.nn.sigmoid(logits)
+    p_axes = p_each.mean(-1)
+    in_contact = contact_label.max(-1)
+    return SelectionCounts(p_sum=p_axes.sum(), samples=jnp.asarray(p_axes.size, jnp.float32),
+                           p_contact_sum=(p_axes * in_contact).sum(), contact_samples=in_contact.sum(),
+                           p_axis_contact_sum=(p_each * contact_label).sum(), axis_contacts=contact_label.sum())
+
+
+def selection_rates(counts: SelectionCounts, axes: int = 3) -> dict[str, jax.Array]:
+    """Mean p_force overall ('p_force'), over samples with some axis in contact / none
+    ('p_force_contact' / 'p_force_free'), and per axis over in-contact / free axes ('p_force_contact_axis'
+    = sum p_i psi_i / sum psi_i, the paper's per-axis figure; 'p_force_free_axis'); NaN where a set is empty."""
+
+    def ratio(total, count):
+        return jnp.where(count > 0, total / jnp.maximum(count, 1.0), jnp.nan)
+
+    c = counts
+    axis_free = axes * c.samples - c.axis_contacts
+    return {"p_force": ratio(c.p_sum, c.samples),
+            "p_force_contact": ratio(c.p_contact_sum, c.contact_samples),
+            "p_force_free": ratio(c.p_sum - c.p_contact_sum, c.samples - c.contact_samples),
+            "p_force_contact_axis": ratio(c.p_axis_contact_sum, c.axis_contacts),
+            "p_force_free_axis": ratio(axes * c.p_sum - c.p_axis_contact_sum, axis_free)}
+
+
 def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config):
     """PPO's clipped surrogate + value loss (+ beta x selection loss for hybrid policies, 'joint' phase).
 
     params: {'actor', 'critic'}; batch: a `ppo.Transition` minibatch (normalised observations, the
     rollout's latent samples and their log-probs, contact labels); adv, returns: (N,) from GAE.
     actor / critic: the Flax modules; dist: the method's action distribution; config: `PPOConfig`.
-    Returns (total loss, metrics); the metrics whose names start with "_" are sums and counts the
-    trainer turns into p_force on in-contact / free-space samples and axes.
+    Returns (total loss, (metrics, SelectionCounts of the batch, or None for policies without selection)).
     """
     head = actor.apply(params["actor"], batch.policy_obs)
     log_prob = dist.log_prob(batch.sample, head)
@@ -44,17 +85,10 @@ def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config):
     entropy = dist.entropy(head).mean()
     total = pg_loss + config.value_coef * value_loss - config.entropy_coef * entropy
     ssl_loss = jnp.zeros(())
-    p_force = jnp.zeros(())
-    contact_stats = {}
+    counts = None
     if dist.num_selections:
         ssl_loss = selection_loss(head.logits, batch.contact_label, config.ssl_samples == "contact")
-        p_axes = jax.nn.sigmoid(head.logits).mean(-1)
-        p_force = p_axes.mean()
-        in_contact = batch.contact_label.max(-1)
-        p_each = jax.nn.sigmoid(head.logits)  # (N, 3)
-        contact_stats = {"_p_force_contact_sum": (p_axes * in_contact).sum(), "_contact_count": in_contact.sum(),
-                         "_p_force_axis_contact_sum": (p_each * batch.contact_label).sum(),
-                         "_axis_contact_count": batch.contact_label.sum()}
+        counts = selection_counts(head.logits, batch.contact_label)
         if config.uses_ssl and config.ssl_phase == "joint":
             total = total + config.ssl_beta * ssl_loss
     metrics = {
@@ -65,7 +99,5 @@ def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config):
         "ssl_loss": ssl_loss,
         "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),
         "clip_fraction": jnp.mean(jnp.abs(ratio - 1.0) > config.clip_eps),
-        "p_force": p_force,
-        **contact_stats,
     }
-    return total, metrics
+    return total, (metrics, counts)

@@ -1,8 +1,10 @@
 """Pure-JAX PPO for the fPiH env: rollout, GAE and the update epochs in one XLA program.
 
 In the style of PureJaxRL: `make_trainer(config, env)` returns pure functions over a `TrainState`
-pytree. One *iteration* = a `lax.scan` of `rollout_steps` env steps across `num_envs` envs, GAE,
-then `epochs` x `minibatches` clipped-surrogate updates. `Trainer.train_chunk` runs
+pytree. One *iteration* (`iteration`) = `rollout` (a `lax.scan` of `rollout_steps` env steps across
+`num_envs` envs), `advantages` (GAE), then `update` (`epochs` x `minibatches` steps on
+`losses.ppo_loss`); each is a module-level function of a `Learner` (the configuration's networks,
+distribution, optimizer and env step). `Trainer.train_chunk` runs
 `iterations_per_chunk` iterations inside one jitted call and returns their metrics. Several seeds
 train in the same program: every TrainState leaf has a leading seed axis; the networks and updates
 are vmapped over it and the envs of all seeds step as one batch (split over the local devices under
@@ -30,8 +32,8 @@ import optax
 from brax.training.acme import running_statistics
 from brax.training.acme import specs
 
-from match_jax.distributions import METHODS, METHOD_CONTROL, Sample, make_distribution
-from match_jax.losses import ppo_loss, selection_loss  # noqa: F401  (selection_loss: public here too)
+from match_jax.distributions import METHODS, METHOD_CONTROL, ProductDistribution, Sample, make_distribution
+from match_jax.losses import ppo_loss, selection_loss, selection_rates
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv, contract
 from match_jax.networks import Actor, Critic, NetworkConfig
 
@@ -221,241 +223,276 @@ def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv
     return FPiHEnv(env_config)
 
 
-def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None = None) -> Trainer:
-    """Build the pure, jit-able init and train_chunk functions of one configuration.
+class Learner(NamedTuple):
+    """The fixed parts of one configuration that a PPO iteration uses (`make_trainer` builds it)."""
 
-    mesh: the 1-D device mesh ('envs') the env batch is split over (`training.batch_mesh`, which
-    `training.Run` passes). The rollout's env step then runs under `shard_map`: every device steps
-    its own block of envs (of every seed) with no cross-device work (its own auto-reset `lax.cond`,
-    its own MJX solver loops), as Brax's pmap does; measured on 2 CPU devices that stepped a
-    contact-heavy batch 1.2x faster than leaving the partitioning to XLA. mesh=None: a plain step.
+    config: PPOConfig
+    actor: Actor
+    critic: Critic
+    dist: ProductDistribution
+    optimizer: optax.GradientTransformation
+    env: Any  # the AutoResetEnv-wrapped env (reset of a batch of keys)
+    env_step: Any  # (env state, action) with (seeds, envs, ...) leaves -> next env state (`seed_batch_step`)
+    env_name: str  # in contract errors
+
+
+def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
+    """Adam with global-norm clipping, one per network (actor and critic clipped separately)."""
+    def one():
+        return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
+                           optax.adam(config.learning_rate, b1=config.adam_b1, b2=config.adam_b2, eps=config.adam_eps))
+    return optax.multi_transform({"actor": one(), "critic": one()}, {"actor": "actor", "critic": "critic"})
+
+
+def normalize(x: jax.Array, stats: running_statistics.RunningStatisticsState) -> jax.Array:
+    """Running-normalised observation, clipped to +-10."""
+    return running_statistics.normalize(x, stats, max_abs_value=10.0)
+
+
+def critic_observation(privileged: jax.Array, steps: jax.Array, episode_steps: int) -> jax.Array:
+    """The critic's raw input: the privileged observation and the fraction of the episode elapsed."""
+    return jnp.concatenate([privileged, (steps / float(episode_steps))[..., None]], axis=-1)
+
+
+def seed_batch_step(benv: AutoResetEnv, num_envs: int, mesh: jax.sharding.Mesh | None = None):
+    """`benv.step` on (seeds, envs, ...) state and action leaves, stepped as one flat batch: a vmap over
+    seeds would turn the auto-reset's lax.cond into a select that runs the reset on every step.
+
+    mesh: the 1-D device mesh ('envs') the env batch is split over (`training.batch_mesh`). The step
+    then runs under `shard_map`: every device steps its own block of envs (of every seed) with no
+    cross-device work (its own auto-reset `lax.cond`, its own MJX solver loops), as Brax's pmap does;
+    measured on 2 CPU devices that stepped a contact-heavy batch 1.2x faster than leaving the
+    partitioning to XLA. mesh=None: a plain step.
     """
-    contract.check_interface(env)
-    dist = make_distribution(config.method, config.selection_in_ratio)
-    actor = Actor(dist.num_continuous, dist.num_selections, config.network, initial_mean_bias(config, env))
-    critic = Critic(config.network)
-    benv = AutoResetEnv(env)
-
     def step_seeds(state, action):
-        """benv.step on (seeds, envs, ...) state and action leaves, as one flat batch: a vmap over seeds
-        would turn the auto-reset's lax.cond into a select that runs the reset on every step."""
         lead = action.shape[:2]
         flat_state = jax.tree_util.tree_map(lambda x: x.reshape((lead[0] * lead[1],) + x.shape[2:]), state)
         next_state = benv.step(flat_state, action.reshape((lead[0] * lead[1],) + action.shape[2:]))
         return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), next_state)
 
-    env_step = step_seeds
-    if mesh is not None:
-        if mesh.axis_names != ("envs",) or (config.num_envs % mesh.size):
-            raise ValueError(f"mesh must be 1-D over 'envs' with num_envs ({config.num_envs}) a multiple of its "
-                             f"size, got axes {mesh.axis_names} of size {mesh.size}")
-        by_env = jax.sharding.PartitionSpec(None, "envs")
-        env_step = jax.shard_map(step_seeds, mesh=mesh, in_specs=(by_env, by_env), out_specs=by_env,
-                                 check_vma=False)
-    episode_steps = float(env.config.episode_steps)
-    obs_sizes = env.observation_size
-    policy_size = obs_sizes["state"][0]
-    critic_size = obs_sizes["privileged_state"][0] + 1
+    if mesh is None:
+        return step_seeds
+    if mesh.axis_names != ("envs",) or (num_envs % mesh.size):
+        raise ValueError(f"mesh must be 1-D over 'envs' with num_envs ({num_envs}) a multiple of its "
+                         f"size, got axes {mesh.axis_names} of size {mesh.size}")
+    by_env = jax.sharding.PartitionSpec(None, "envs")
+    return jax.shard_map(step_seeds, mesh=mesh, in_specs=(by_env, by_env), out_specs=by_env, check_vma=False)
 
-    def critic_obs_raw(privileged, steps):
-        return jnp.concatenate([privileged, (steps / episode_steps)[..., None]], axis=-1)
 
-    def make_optimizer():
-        def one():
-            return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
-                               optax.adam(config.learning_rate, b1=config.adam_b1, b2=config.adam_b2,
-                                          eps=config.adam_eps))
-        return optax.multi_transform({"actor": one(), "critic": one()}, {"actor": "actor", "critic": "critic"})
+def init_seed(learner: Learner, key: jax.Array) -> TrainState:
+    """The TrainState of one seed (no seed axis)."""
+    config, env = learner.config, learner.env
+    k_actor, k_critic, k_env, key = jax.random.split(key, 4)
+    sizes = env.observation_size
+    policy_size, critic_size = sizes["state"][0], sizes["privileged_state"][0] + 1
+    params = {"actor": learner.actor.init(k_actor, jnp.zeros((1, policy_size))),
+              "critic": learner.critic.init(k_critic, jnp.zeros((1, critic_size)))}
+    env_state = env.reset(jax.random.split(k_env, config.num_envs))
+    contract.check_state(env_state, f"{learner.env_name}.reset")  # at trace time: free
+    return TrainState(
+        params=params,
+        opt_state=learner.optimizer.init(params),
+        policy_stats=initial_stats(policy_size),
+        critic_stats=initial_stats(critic_size),
+        env_state=env_state,
+        episode_success=jnp.zeros(config.num_envs),
+        key=key,
+        iteration=jnp.zeros((), jnp.int32),
+        env_steps=jnp.zeros((), jnp.int32),
+    )
 
-    optimizer = make_optimizer()
 
-    def normalize(x, stats):
-        return running_statistics.normalize(x, stats, max_abs_value=10.0)
+class Rollout(NamedTuple):
+    """What `rollout` returns for every seed (leading seed axis)."""
 
-    def policy_head(params, policy_stats, policy_obs):
-        return actor.apply(params["actor"], normalize(policy_obs, policy_stats))
+    env_state: Any  # after the last step
+    episode_success: jax.Array  # (S, envs) of the running episodes
+    policy_stats: running_statistics.RunningStatisticsState  # updated with the rollout's observations
+    critic_stats: running_statistics.RunningStatisticsState
+    counts: dict  # per seed: episodes, successes, breaks, reward and contact steps summed over the rollout
+    traj: Transition  # (S, T, envs, ...), observations normalised with the statistics before the update
+    last_critic_obs: jax.Array  # (S, envs, critic size), normalised: the state after the last step
 
-    def init_one(key: jax.Array) -> TrainState:
-        k_actor, k_critic, k_env, key = jax.random.split(key, 4)
-        params = {"actor": actor.init(k_actor, jnp.zeros((1, policy_size))),
-                  "critic": critic.init(k_critic, jnp.zeros((1, critic_size)))}
-        env_state = benv.reset(jax.random.split(k_env, config.num_envs))
-        contract.check_state(env_state, f"{type(env).__name__}.reset")  # at trace time: free
-        return TrainState(
-            params=params,
-            opt_state=optimizer.init(params),
-            policy_stats=initial_stats(policy_size),
-            critic_stats=initial_stats(critic_size),
-            env_state=env_state,
-            episode_success=jnp.zeros(config.num_envs),
-            key=key,
-            iteration=jnp.zeros((), jnp.int32),
-            env_steps=jnp.zeros((), jnp.int32),
+
+def rollout(learner: Learner, ts: TrainState, keys: jax.Array) -> Rollout:
+    """`rollout_steps` env steps of every seed's envs (keys: (S, 2), one per seed).
+
+    Env state, observations and transitions keep a (seeds, envs, ...) layout; the networks are vmapped
+    over the seed axis and the env steps every seed's envs as one batch (`learner.env_step`). The scan
+    body has no reduction over envs (episode counters are kept per env, the observation statistics are
+    updated from the whole rollout after the scan): with the envs split over devices, a reduction there
+    would be a cross-device all-reduce at every step, making each device wait for the other's slowest env.
+    """
+    config, dist = learner.config, learner.dist
+    episode_steps = learner.env.config.episode_steps
+    v_normalize = jax.vmap(normalize)
+    v_actor = jax.vmap(learner.actor.apply)
+
+    @jax.named_scope("rollout_step")
+    def step(carry, step_keys):
+        env_state, ep_success, counts = carry
+        raw_policy = env_state.obs["state"]
+        raw_critic = critic_observation(env_state.obs["privileged_state"], env_state.info["steps"], episode_steps)
+        policy_obs = v_normalize(raw_policy, ts.policy_stats)
+        head = v_actor(ts.params["actor"], policy_obs)
+        sample = jax.vmap(dist.sample)(step_keys, head)
+        log_prob = dist.log_prob(sample, head)
+        next_state = learner.env_step(env_state, dist.to_action(sample))
+        contract.check_state(next_state, f"{learner.env_name}.step")  # at trace time: free
+        final_raw = critic_observation(next_state.info["final_obs"]["privileged_state"],
+                                       env_state.info["steps"] + 1, episode_steps)
+        done, broken = next_state.done, next_state.info["broken"]
+        ep_success = jnp.maximum(ep_success, next_state.info["success"] * (1.0 - broken))
+        counts = {
+            "episodes": counts["episodes"] + done,
+            "successes": counts["successes"] + done * ep_success,
+            "breaks": counts["breaks"] + done * broken,
+            "reward": counts["reward"] + next_state.reward,
+            "contact_steps": counts["contact_steps"] + next_state.info["in_contact"],
+        }
+        ep_success = jnp.where(done > 0, 0.0, ep_success)
+        transition = Transition(
+            policy_obs=policy_obs,
+            critic_obs=v_normalize(raw_critic, ts.critic_stats),
+            final_critic_obs=v_normalize(final_raw, ts.critic_stats),
+            sample=sample,
+            log_prob=log_prob,
+            reward=next_state.reward * config.reward_scale,
+            done=done,
+            truncation=next_state.info["truncation"],
+            contact_label=env_state.info["contact_axes"],
         )
+        return (next_state, ep_success, counts), (transition, raw_policy, raw_critic)
 
-    # ------------------------------------------------------------------------------ rollout
-    # Env state, observations and transitions keep a (seeds, envs, ...) layout; the networks are vmapped
-    # over the seed axis and the env steps every seed's envs as one batch (`env_step`). The scan body has
-    # no reduction over envs (episode counters are kept per env, the observation statistics are updated
-    # from the whole rollout after the scan): with the envs split over devices, a reduction there would
-    # be a cross-device all-reduce at every step, making each device wait for the other's slowest env.
-    def rollout(ts: TrainState, keys: jax.Array):
-        v_normalize = jax.vmap(normalize)
-        v_actor = jax.vmap(actor.apply)
+    counts0 = {k: jnp.zeros_like(ts.episode_success)
+               for k in ("episodes", "successes", "breaks", "reward", "contact_steps")}
+    carry0 = (ts.env_state, ts.episode_success, counts0)
+    step_keys = jax.vmap(lambda k: jax.random.split(k, config.rollout_steps), out_axes=1)(keys)
+    (env_state, ep_success, counts), (traj, raw_policy, raw_critic) = jax.lax.scan(step, carry0, step_keys)
 
-        @jax.named_scope("rollout_step")
-        def step(carry, step_keys):
-            env_state, ep_success, counts = carry
-            raw_policy = env_state.obs["state"]
-            raw_critic = critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"])
-            policy_obs = v_normalize(raw_policy, ts.policy_stats)
-            head = v_actor(ts.params["actor"], policy_obs)
-            sample = jax.vmap(dist.sample)(step_keys, head)
-            log_prob = dist.log_prob(sample, head)
-            next_state = env_step(env_state, dist.to_action(sample))
-            contract.check_state(next_state, f"{type(env).__name__}.step")  # at trace time: free
-            final_raw = critic_obs_raw(next_state.info["final_obs"]["privileged_state"], env_state.info["steps"] + 1)
-            done, broken = next_state.done, next_state.info["broken"]
-            ep_success = jnp.maximum(ep_success, next_state.info["success"] * (1.0 - broken))
-            counts = {
-                "episodes": counts["episodes"] + done,
-                "successes": counts["successes"] + done * ep_success,
-                "breaks": counts["breaks"] + done * broken,
-                "reward": counts["reward"] + next_state.reward,
-                "contact_steps": counts["contact_steps"] + next_state.info["in_contact"],
-            }
-            ep_success = jnp.where(done > 0, 0.0, ep_success)
-            transition = Transition(
-                policy_obs=policy_obs,
-                critic_obs=v_normalize(raw_critic, ts.critic_stats),
-                final_critic_obs=v_normalize(final_raw, ts.critic_stats),
-                sample=sample,
-                log_prob=log_prob,
-                reward=next_state.reward * config.reward_scale,
-                done=done,
-                truncation=next_state.info["truncation"],
-                contact_label=env_state.info["contact_axes"],
-            )
-            return (next_state, ep_success, counts), (transition, raw_policy, raw_critic)
+    def to_seed_major(x):  # (T, S, ...) -> (S, T, ...)
+        return jnp.swapaxes(x, 0, 1)
 
-        counts0 = {k: jnp.zeros_like(ts.episode_success)
-                   for k in ("episodes", "successes", "breaks", "reward", "contact_steps")}
-        carry0 = (ts.env_state, ts.episode_success, counts0)
-        step_keys = jax.vmap(lambda k: jax.random.split(k, config.rollout_steps), out_axes=1)(keys)
-        (env_state, ep_success, counts), (traj, raw_policy, raw_critic) = jax.lax.scan(step, carry0, step_keys)
-        stats = {k: v.sum(-1) for k, v in counts.items()}
+    last_critic = critic_observation(env_state.obs["privileged_state"], env_state.info["steps"], episode_steps)
+    return Rollout(
+        env_state=env_state,
+        episode_success=ep_success,
+        policy_stats=jax.vmap(running_statistics.update)(ts.policy_stats, to_seed_major(raw_policy)),
+        critic_stats=jax.vmap(running_statistics.update)(ts.critic_stats, to_seed_major(raw_critic)),
+        counts={k: v.sum(-1) for k, v in counts.items()},
+        traj=jax.tree_util.tree_map(to_seed_major, traj),
+        last_critic_obs=v_normalize(last_critic, ts.critic_stats),
+    )
 
-        def to_seed_major(x):  # (T, S, ...) -> (S, T, ...)
-            return jnp.swapaxes(x, 0, 1)
 
-        p_stats = jax.vmap(running_statistics.update)(ts.policy_stats, to_seed_major(raw_policy))
-        c_stats = jax.vmap(running_statistics.update)(ts.critic_stats, to_seed_major(raw_critic))
-        last_critic = v_normalize(critic_obs_raw(env_state.obs["privileged_state"], env_state.info["steps"]),
-                                  ts.critic_stats)
-        traj = jax.tree_util.tree_map(to_seed_major, traj)  # (S, T, B, ...)
-        return env_state, ep_success, p_stats, c_stats, stats, traj, last_critic
+def advantages(learner: Learner, params: dict, traj: Transition, last_critic_obs: jax.Array):
+    """GAE (advantages, returns), each (T, envs), of one seed's rollout under its critic."""
+    config, critic = learner.config, learner.critic
+    values = critic.apply(params["critic"], traj.critic_obs)
+    final_values = critic.apply(params["critic"], traj.final_critic_obs)
+    last_value = critic.apply(params["critic"], last_critic_obs)
+    return generalized_advantages(traj.reward, values, final_values, last_value, traj.done, traj.truncation,
+                                  config.gamma, config.gae_lambda)
 
-    # ---------------------------------------------------------------------------------- GAE
-    def advantages(params, traj: Transition, last_critic):
-        values = critic.apply(params["critic"], traj.critic_obs)  # (T, B)
-        final_values = critic.apply(params["critic"], traj.final_critic_obs)
-        last_value = critic.apply(params["critic"], last_critic)
-        return generalized_advantages(traj.reward, values, final_values, last_value, traj.done, traj.truncation,
-                                      config.gamma, config.gae_lambda)
 
-    # ------------------------------------------------------------------------------- update
-    loss_fn = functools.partial(ppo_loss, actor=actor, critic=critic, dist=dist, config=config)
+def update(learner: Learner, params: dict, opt_state, traj: Transition, adv: jax.Array, returns: jax.Array,
+           key: jax.Array):
+    """`epochs` x `minibatches` steps on `ppo_loss` over one seed's rollout (then, with ssl_phase 'after',
+    an epoch of SSL-only steps). Returns (params, opt_state, metrics: the loss metrics' means and the
+    p_force rates of `losses.selection_rates`, NaN for policies without selection)."""
+    config, optimizer = learner.config, learner.optimizer
+    n = config.steps_per_iteration
+    flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[2:]), (traj, adv, returns))
+    loss_fn = functools.partial(ppo_loss, actor=learner.actor, critic=learner.critic, dist=learner.dist,
+                                config=config)
 
-    def update(params, opt_state, traj: Transition, adv, returns, key):
-        n = config.steps_per_iteration
-        flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[2:]), (traj, adv, returns))
+    def shuffled_minibatches(perm_key, tree):
+        """`tree` (leading axis n) shuffled and split into (minibatches, n / minibatches, ...)."""
+        perm = jax.random.permutation(perm_key, n)
+        return jax.tree_util.tree_map(
+            lambda x: x[perm].reshape((config.minibatches, n // config.minibatches) + x.shape[1:]), tree)
 
-        def shuffled_minibatches(perm_key, tree):
-            """`tree` (leading axis n) shuffled and split into (minibatches, n / minibatches, ...)."""
-            perm = jax.random.permutation(perm_key, n)
-            return jax.tree_util.tree_map(
-                lambda x: x[perm].reshape((config.minibatches, n // config.minibatches) + x.shape[1:]), tree)
+    def apply_grads(params, opt_state, grads):
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        return optax.apply_updates(params, updates), opt_state
 
-        def epoch(carry, epoch_key):
-            params, opt_state = carry
+    def minibatch(carry, mb):
+        params, opt_state = carry
+        grads, aux = jax.grad(loss_fn, has_aux=True)(params, *mb)
+        return apply_grads(params, opt_state, grads), aux
 
-            def minibatch(carry, mb):
-                params, opt_state = carry
-                grads, metrics = jax.grad(loss_fn, has_aux=True)(params, *mb)
-                updates, opt_state = optimizer.update(grads, opt_state, params)
-                return (optax.apply_updates(params, updates), opt_state), metrics
+    def epoch(carry, epoch_key):
+        return jax.lax.scan(minibatch, carry, shuffled_minibatches(epoch_key, flat))
 
-            return jax.lax.scan(minibatch, (params, opt_state), shuffled_minibatches(epoch_key, flat))
+    (params, opt_state), (metrics, counts) = jax.lax.scan(epoch, (params, opt_state),
+                                                          jax.random.split(key, config.epochs))
+    if config.uses_ssl and config.ssl_phase == "after":
+        def ssl_step(carry, mb):  # SSL-only steps, after PPO has finished with this rollout
+            (params, opt_state), (obs, labels) = carry, mb
+            grads = jax.grad(lambda p: config.ssl_beta * selection_loss(
+                learner.actor.apply(p["actor"], obs).logits, labels, config.ssl_samples == "contact"))(params)
+            return apply_grads(params, opt_state, grads), None
 
-        (params, opt_state), metrics = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, config.epochs))
-        if config.uses_ssl and config.ssl_phase == "after":
-            # one epoch of SSL-only minibatch steps, after PPO has finished with this rollout
-            def ssl_step(carry, mb):
-                params, opt_state = carry
-                obs, labels = mb
-                grads = jax.grad(lambda p: config.ssl_beta * selection_loss(
-                    actor.apply(p["actor"], obs).logits, labels, config.ssl_samples == "contact"))(params)
-                updates, opt_state = optimizer.update(grads, opt_state, params)
-                return (optax.apply_updates(params, updates), opt_state), None
+        batches = shuffled_minibatches(jax.random.fold_in(key, config.epochs),
+                                       (flat[0].policy_obs, flat[0].contact_label))
+        (params, opt_state), _ = jax.lax.scan(ssl_step, (params, opt_state), batches)
+    metrics = jax.tree_util.tree_map(jnp.mean, metrics)
+    if counts is not None:
+        metrics.update(selection_rates(jax.tree_util.tree_map(jnp.sum, counts), learner.dist.num_selections))
+    else:
+        metrics["p_force"] = jnp.zeros(())
+        for name in ("p_force_contact", "p_force_free", "p_force_contact_axis", "p_force_free_axis"):
+            metrics[name] = jnp.full((), jnp.nan)
+    return params, opt_state, metrics
 
-            batches = shuffled_minibatches(jax.random.fold_in(key, config.epochs),
-                                           (flat[0].policy_obs, flat[0].contact_label))
-            (params, opt_state), _ = jax.lax.scan(ssl_step, (params, opt_state), batches)
-        metrics = jax.tree_util.tree_map(jnp.mean, metrics)
-        # mean p_force over the in-contact and the free-space samples (NaN where there are none), from the
-        # per-minibatch sums and counts averaged above (the free-space sum is the total minus the in-contact sum)
-        if dist.num_selections:
-            size = n / config.minibatches
-            contact, contact_sum = metrics.pop("_contact_count"), metrics.pop("_p_force_contact_sum")
-            free, free_sum = size - contact, metrics["p_force"] * size - contact_sum
-            metrics["p_force_contact"] = jnp.where(contact > 0, contact_sum / jnp.maximum(contact, 1.0), jnp.nan)
-            metrics["p_force_free"] = jnp.where(free > 0, free_sum / jnp.maximum(free, 1.0), jnp.nan)
-            # per axis: sum_i p_i psi_i / sum_i psi_i over samples and axes (the paper's per-axis figure)
-            axis_contact, axis_sum = metrics.pop("_axis_contact_count"), metrics.pop("_p_force_axis_contact_sum")
-            axes = dist.num_selections
-            axis_free, axis_free_sum = axes * size - axis_contact, axes * metrics["p_force"] * size - axis_sum
-            metrics["p_force_contact_axis"] = jnp.where(axis_contact > 0, axis_sum / jnp.maximum(axis_contact, 1.0),
-                                                        jnp.nan)
-            metrics["p_force_free_axis"] = jnp.where(axis_free > 0, axis_free_sum / jnp.maximum(axis_free, 1.0),
-                                                     jnp.nan)
-        else:
-            for name in ("p_force_contact", "p_force_free", "p_force_contact_axis", "p_force_free_axis"):
-                metrics[name] = jnp.full((), jnp.nan)
-        return params, opt_state, metrics
 
-    # ----------------------------------------------------------------------------- iteration
-    def iteration(ts: TrainState, _):
-        """One PPO iteration for every seed (the leading axis of each TrainState leaf)."""
-        keys = jax.vmap(lambda k: jax.random.split(k, 3))(ts.key)
-        env_state, ep_success, p_stats, c_stats, stats, traj, last_critic = rollout(ts, keys[:, 1])
-        adv, returns = jax.vmap(advantages)(ts.params, traj, last_critic)
-        params, opt_state, metrics = jax.vmap(update)(ts.params, ts.opt_state, traj, adv, returns, keys[:, 2])
-        episodes = stats["episodes"]
-        metrics.update(
-            episodes=episodes,
-            success_rate=jnp.where(episodes > 0, stats["successes"] / jnp.maximum(episodes, 1.0), jnp.nan),
-            break_rate=jnp.where(episodes > 0, stats["breaks"] / jnp.maximum(episodes, 1.0), jnp.nan),
-            mean_reward=stats["reward"] / config.steps_per_iteration,
-            contact_fraction=stats["contact_steps"] / config.steps_per_iteration,
-            action_std=jnp.exp(params["actor"]["params"]["log_std"]).mean(-1),
-        )
-        env_steps = ts.env_steps + config.steps_per_iteration
-        metrics.update(iteration=ts.iteration + 1, env_steps=env_steps)
-        ts = TrainState(params, opt_state, p_stats, c_stats, env_state, ep_success, keys[:, 0], ts.iteration + 1,
-                        env_steps)
-        return ts, metrics
+def iteration(learner: Learner, ts: TrainState) -> tuple[TrainState, dict]:
+    """One PPO iteration for every seed (the leading axis of each TrainState leaf): rollout, GAE, update."""
+    config = learner.config
+    keys = jax.vmap(lambda k: jax.random.split(k, 3))(ts.key)
+    out = rollout(learner, ts, keys[:, 1])
+    adv, returns = jax.vmap(functools.partial(advantages, learner))(ts.params, out.traj, out.last_critic_obs)
+    params, opt_state, metrics = jax.vmap(functools.partial(update, learner))(
+        ts.params, ts.opt_state, out.traj, adv, returns, keys[:, 2])
+    counts, episodes = out.counts, out.counts["episodes"]
+    metrics.update(
+        episodes=episodes,
+        success_rate=jnp.where(episodes > 0, counts["successes"] / jnp.maximum(episodes, 1.0), jnp.nan),
+        break_rate=jnp.where(episodes > 0, counts["breaks"] / jnp.maximum(episodes, 1.0), jnp.nan),
+        mean_reward=counts["reward"] / config.steps_per_iteration,
+        contact_fraction=counts["contact_steps"] / config.steps_per_iteration,
+        action_std=jnp.exp(params["actor"]["params"]["log_std"]).mean(-1),
+    )
+    env_steps = ts.env_steps + config.steps_per_iteration
+    metrics.update(iteration=ts.iteration + 1, env_steps=env_steps)
+    ts = TrainState(params, opt_state, out.policy_stats, out.critic_stats, out.env_state, out.episode_success,
+                    keys[:, 0], ts.iteration + 1, env_steps)
+    return ts, metrics
+
+
+def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None = None) -> Trainer:
+    """The pure, jit-able init and train_chunk of one configuration (mesh: see `seed_batch_step`)."""
+    contract.check_interface(env)
+    dist = make_distribution(config.method, config.selection_in_ratio)
+    actor = Actor(dist.num_continuous, dist.num_selections, config.network, initial_mean_bias(config, env))
+    benv = AutoResetEnv(env)
+    learner = Learner(config=config, actor=actor, critic=Critic(config.network), dist=dist,
+                      optimizer=make_optimizer(config), env=benv,
+                      env_step=seed_batch_step(benv, config.num_envs, mesh), env_name=type(env).__name__)
 
     def init(keys: jax.Array) -> TrainState:
         """The TrainState of len(keys) seeds (leading seed axis on every leaf).
 
         A loop over seeds, not a vmap: a vmapped orthogonal initialiser is a batched LAPACK QR, whose
-        parallel batch map deadlocked XLA's CPU thread pool (jaxlib 0.10.2, cpu preset: 3 seeds hung in
-        23 of 28 tries on 1 or 2 devices, 4 seeds in 2 of 2; every thread parked, no progress)."""
-        return jax.lax.map(init_one, keys)
+        parallel batch map deadlocked XLA's CPU thread pool (jaxlib 0.10.2; docs/troubleshooting.md)."""
+        return jax.lax.map(functools.partial(init_seed, learner), keys)
 
     def train_chunk(ts: TrainState):
         """`iterations_per_chunk` iterations; metrics are (iterations_per_chunk, num_seeds) arrays."""
-        return jax.lax.scan(iteration, ts, None, length=config.iterations_per_chunk)
+        return jax.lax.scan(lambda t, _: iteration(learner, t), ts, None, length=config.iterations_per_chunk)
+
+    def policy_head(params, policy_stats, policy_obs):
+        return actor.apply(params["actor"], normalize(policy_obs, policy_stats))
 
     return Trainer(config=config, env=env, init=init, train_chunk=train_chunk, policy_head=policy_head,
                    distribution=dist)

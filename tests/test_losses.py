@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from match_jax.distributions import make_distribution
-from match_jax.losses import ppo_loss, selection_loss
+from match_jax.losses import ppo_loss, selection_counts, selection_loss, selection_rates
 from match_jax.networks import Actor, Critic, NetworkConfig
 from match_jax.ppo import PPOConfig, Transition
 
@@ -38,7 +38,7 @@ def setup():
 def test_ratio_one_leaves_value_and_selection_losses(setup):
     config, params, batch, kw, head = setup
     adv, returns = jnp.linspace(-1.0, 2.0, N), jnp.linspace(0.0, 3.0, N)
-    total, m = ppo_loss(params, batch, adv, returns, config=config, **kw)
+    total, (m, counts) = ppo_loss(params, batch, adv, returns, config=config, **kw)
     values = kw["critic"].apply(params["critic"], batch.critic_obs)
     value_loss = 0.5 * np.mean((np.asarray(values) - np.asarray(returns)) ** 2)
     ssl = float(selection_loss(head.logits, batch.contact_label))
@@ -51,6 +51,8 @@ def test_ratio_one_leaves_value_and_selection_losses(setup):
     no_ssl = dataclasses.replace(config, ssl_coef=0.0)
     total0, _ = ppo_loss(params, batch, adv, returns, config=no_ssl, **kw)
     assert float(total) - float(total0) == pytest.approx(config.ssl_beta * ssl, rel=1e-4)
+    p = jax.nn.sigmoid(head.logits)
+    assert float(selection_rates(counts)["p_force"]) == pytest.approx(float(p.mean()), rel=1e-5)
 
 
 def test_clipping_caps_the_surrogate(setup):
@@ -60,8 +62,27 @@ def test_clipping_caps_the_surrogate(setup):
     shifted = batch._replace(log_prob=batch.log_prob - 1.0)
     adv = jnp.where(jnp.arange(N) % 2 == 0, 1.0, -1.0)
     unnormalised = dataclasses.replace(config, normalize_advantages=False)
-    _, m = ppo_loss(params, shifted, adv, jnp.zeros(N), config=unnormalised, **kw)
+    _, (m, _) = ppo_loss(params, shifted, adv, jnp.zeros(N), config=unnormalised, **kw)
     ratio, clip = np.e, config.clip_eps
     expected = -np.mean(np.where(np.asarray(adv) > 0, (1 + clip) * 1.0, ratio * -1.0))
     assert float(m["policy_loss"]) == pytest.approx(expected, rel=1e-4)
     assert float(m["clip_fraction"]) == 1.0
+
+
+def test_selection_rates_against_hand_counts():
+    """Three samples: one touching on x and z, one on y, one free; p_force per axis given."""
+    p = np.array([[0.9, 0.2, 0.7], [0.1, 0.6, 0.2], [0.05, 0.1, 0.15]])
+    labels = np.array([[1.0, 0.0, 1.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
+    logits = jnp.log(p / (1.0 - p))
+    half = [selection_counts(logits[rows], labels[rows]) for rows in (slice(0, 2), slice(2, 3))]
+    counts = jax.tree_util.tree_map(lambda a, b: a + b, *half)  # sums add over minibatches
+    rates = {k: float(v) for k, v in selection_rates(counts).items()}
+    assert rates["p_force"] == pytest.approx(p.mean(), rel=1e-5)
+    assert rates["p_force_contact"] == pytest.approx(p[:2].mean(), rel=1e-5)
+    assert rates["p_force_free"] == pytest.approx(p[2].mean(), rel=1e-5)
+    assert rates["p_force_contact_axis"] == pytest.approx((0.9 + 0.7 + 0.6) / 3, rel=1e-5)
+    free_axes = p[labels == 0]
+    assert rates["p_force_free_axis"] == pytest.approx(free_axes.mean(), rel=1e-5)
+    none = {k: float(v) for k, v in selection_rates(selection_counts(logits[2:], labels[2:])).items()}
+    assert np.isnan(none["p_force_contact"]) and np.isnan(none["p_force_contact_axis"])
+    assert none["p_force_free"] == pytest.approx(p[2].mean(), rel=1e-5)
