@@ -65,12 +65,13 @@ def selection_rates(counts: SelectionCounts, axes: int = 3) -> dict[str, jax.Arr
             "p_force_free_axis": ratio(axes * c.p_sum - c.p_axis_contact_sum, axis_free)}
 
 
-def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config):
+def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config, ssl_beta=None):
     """PPO's clipped surrogate + value loss (+ beta x selection loss for hybrid policies, 'joint' phase).
 
     params: {'actor', 'critic'}; batch: a `ppo.Transition` minibatch (normalised observations, the
     rollout's latent samples and their log-probs, contact labels); adv, returns: (N,) from GAE.
-    actor / critic: the Flax modules; dist: the method's action distribution; config: `PPOConfig`.
+    actor / critic: the Flax modules; dist: the method's action distribution; config: `PPOConfig`;
+    ssl_beta: the selection loss's weight, a value or a traced scalar (None: config.ssl_beta).
     Returns (total loss, (metrics, SelectionCounts of the batch, or None for policies without selection)).
     """
     head = actor.apply(params["actor"], batch.policy_obs)
@@ -90,7 +91,7 @@ def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config):
         ssl_loss = selection_loss(head.logits, batch.contact_label, config.ssl_samples == "contact")
         counts = selection_counts(head.logits, batch.contact_label)
         if config.uses_ssl and config.ssl_phase == "joint":
-            total = total + config.ssl_beta * ssl_loss
+            total = total + (config.ssl_beta if ssl_beta is None else ssl_beta) * ssl_loss
     metrics = {
         "loss": total,
         "policy_loss": pg_loss,

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 from typing import Any, NamedTuple
 
 import jax
@@ -161,8 +162,8 @@ class Trainer(NamedTuple):
 
     config: PPOConfig
     env: FPiHEnv
-    init: Any  # keys (num_seeds, 2) -> TrainState with a leading seed axis
-    train_chunk: Any  # TrainState -> (TrainState, metrics (iterations_per_chunk, num_seeds))
+    init: Any  # keys (num_seeds, 2)[, RuntimeValues] -> TrainState with a leading seed axis
+    train_chunk: Any  # TrainState[, RuntimeValues] -> (TrainState, metrics (iterations_per_chunk, num_seeds))
     policy_head: Any  # (params, policy_stats, obs['state']) -> PolicyHead
     distribution: Any
 
@@ -223,6 +224,24 @@ def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv
     return FPiHEnv(env_config)
 
 
+class RuntimeValues(NamedTuple):
+    """Settings the trainer takes as arguments, not as constants of its program: configurations that
+    differ only in these share one compiled program (`training.programs`)."""
+
+    ssl_beta: Any  # weight of the selection loss ('joint' phase)
+    break_force: Any  # N; inf = unbreakable
+    hole_obs_noise: Any  # m, the hole-position observation noise (sd or half-width)
+
+    @classmethod
+    def of(cls, config: PPOConfig, env_config: Any) -> "RuntimeValues":
+        """The values of a configuration, as float32 arrays (env_config None: FPiHConfig's defaults;
+        an env config without a break force or hole noise, such as PointMassEnv's: inf and 0)."""
+        env_config = FPiHConfig() if env_config is None else env_config
+        values = (config.ssl_beta, getattr(env_config, "break_force", math.inf),
+                  getattr(env_config, "hole_obs_noise", 0.0))
+        return cls(*(jnp.asarray(v, jnp.float32) for v in values))
+
+
 class Learner(NamedTuple):
     """The fixed parts of one configuration that a PPO iteration uses (`make_trainer` builds it)."""
 
@@ -234,6 +253,7 @@ class Learner(NamedTuple):
     env: Any  # the AutoResetEnv-wrapped env (reset of a batch of keys)
     env_step: Any  # (env state, action) with (seeds, envs, ...) leaves -> next env state (`seed_batch_step`)
     env_name: str  # in contract errors
+    ssl_beta: Any  # the selection loss's weight (a traced scalar when given as a RuntimeValues)
 
 
 def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
@@ -404,7 +424,7 @@ def update(learner: Learner, params: dict, opt_state, traj: Transition, adv: jax
     n = config.steps_per_iteration
     flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[2:]), (traj, adv, returns))
     loss_fn = functools.partial(ppo_loss, actor=learner.actor, critic=learner.critic, dist=learner.dist,
-                                config=config)
+                                config=config, ssl_beta=learner.ssl_beta)
 
     def shuffled_minibatches(perm_key, tree):
         """`tree` (leading axis n) shuffled and split into (minibatches, n / minibatches, ...)."""
@@ -429,7 +449,7 @@ def update(learner: Learner, params: dict, opt_state, traj: Transition, adv: jax
     if config.uses_ssl and config.ssl_phase == "after":
         def ssl_step(carry, mb):  # SSL-only steps, after PPO has finished with this rollout
             (params, opt_state), (obs, labels) = carry, mb
-            grads = jax.grad(lambda p: config.ssl_beta * selection_loss(
+            grads = jax.grad(lambda p: learner.ssl_beta * selection_loss(
                 learner.actor.apply(p["actor"], obs).logits, labels, config.ssl_samples == "contact"))(params)
             return apply_grads(params, opt_state, grads), None
 
@@ -471,25 +491,39 @@ def iteration(learner: Learner, ts: TrainState) -> tuple[TrainState, dict]:
 
 
 def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None = None) -> Trainer:
-    """The pure, jit-able init and train_chunk of one configuration (mesh: see `seed_batch_step`)."""
+    """The pure, jit-able init and train_chunk of one configuration (mesh: see `seed_batch_step`).
+
+    Both take an optional `RuntimeValues` (None: the configuration's own, as constants): the SSL weight,
+    and for an env with `with_values` (FPiHEnv) its break force and hole-observation noise.
+    """
     contract.check_interface(env)
     dist = make_distribution(config.method, config.selection_in_ratio)
     actor = Actor(dist.num_continuous, dist.num_selections, config.network, initial_mean_bias(config, env))
-    benv = AutoResetEnv(env)
-    learner = Learner(config=config, actor=actor, critic=Critic(config.network), dist=dist,
-                      optimizer=make_optimizer(config), env=benv,
-                      env_step=seed_batch_step(benv, config.num_envs, mesh), env_name=type(env).__name__)
+    critic, optimizer = Critic(config.network), make_optimizer(config)
 
-    def init(keys: jax.Array) -> TrainState:
+    def learner(values: RuntimeValues | None) -> Learner:
+        ssl_beta = config.ssl_beta
+        task_env = env
+        if values is not None:
+            ssl_beta = values.ssl_beta
+            if hasattr(env, "with_values"):
+                task_env = env.with_values(values.break_force, values.hole_obs_noise)
+        benv = AutoResetEnv(task_env)
+        return Learner(config=config, actor=actor, critic=critic, dist=dist, optimizer=optimizer, env=benv,
+                       env_step=seed_batch_step(benv, config.num_envs, mesh), env_name=type(env).__name__,
+                       ssl_beta=ssl_beta)
+
+    def init(keys: jax.Array, values: RuntimeValues | None = None) -> TrainState:
         """The TrainState of len(keys) seeds (leading seed axis on every leaf).
 
         A loop over seeds, not a vmap: a vmapped orthogonal initialiser is a batched LAPACK QR, whose
         parallel batch map deadlocked XLA's CPU thread pool (jaxlib 0.10.2; docs/troubleshooting.md)."""
-        return jax.lax.map(functools.partial(init_seed, learner), keys)
+        return jax.lax.map(functools.partial(init_seed, learner(values)), keys)
 
-    def train_chunk(ts: TrainState):
+    def train_chunk(ts: TrainState, values: RuntimeValues | None = None):
         """`iterations_per_chunk` iterations; metrics are (iterations_per_chunk, num_seeds) arrays."""
-        return jax.lax.scan(lambda t, _: iteration(learner, t), ts, None, length=config.iterations_per_chunk)
+        learn = learner(values)
+        return jax.lax.scan(lambda t, _: iteration(learn, t), ts, None, length=config.iterations_per_chunk)
 
     def policy_head(params, policy_stats, policy_obs):
         return actor.apply(params["actor"], normalize(policy_obs, policy_stats))

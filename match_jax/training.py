@@ -35,7 +35,7 @@ from match_jax.controllers.action_spaces import ActionConfig
 from match_jax.controllers.osc import ControllerConfig
 from match_jax.envs import FPiHConfig
 from match_jax.networks import NetworkConfig
-from match_jax.ppo import PPOConfig, Trainer, TrainState, make_env, make_trainer
+from match_jax.ppo import SSL_BETA, PPOConfig, RuntimeValues, Trainer, TrainState, make_env, make_trainer
 
 LOGGED = ("iteration", "env_steps", "success_rate", "break_rate", "episodes", "mean_reward", "contact_fraction",
           "loss", "policy_loss", "value_loss", "ssl_loss", "entropy", "approx_kl", "clip_fraction", "p_force",
@@ -158,21 +158,30 @@ class Programs:
         return self._shapes[num_seeds]
 
 
-def program_config(ppo: PPOConfig) -> PPOConfig:
-    """`ppo` with the step budget set to a fixed value: the budget only sets how many iterations the host
-    runs, so configurations that differ in it alone share their compiled programs."""
-    return dataclasses.replace(ppo, total_steps=PPOConfig.total_steps)
+def program_config(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> tuple[PPOConfig, FPiHConfig]:
+    """The configuration a run's compiled programs depend on: `ppo` and its env config (None: the
+    method's default) with what the programs take as arguments set to fixed values: the step budget (it
+    only sets how many iterations the host runs) and the `RuntimeValues` (SSL weight of the 'joint'
+    phase, break force, hole-observation noise). Configurations with the same program_config share
+    their compiled programs; a Run passes its own values (`RuntimeValues.of`)."""
+    env_config = FPiHConfig(control=ppo.control) if env_config is None else env_config
+    fixed = {"total_steps": PPOConfig.total_steps}
+    if ppo.ssl_phase == "joint" and ppo.method in ("hybrid", "match"):
+        fixed["ssl_coef"] = SSL_BETA  # any weight > 0 keeps the term in the loss; its value is an argument
+    env_config = dataclasses.replace(env_config, break_force=FPiHConfig.break_force,
+                                     hole_obs_noise=FPiHConfig.hole_obs_noise)
+    return dataclasses.replace(ppo, **fixed), env_config
 
 
 @functools.lru_cache(maxsize=4)
-def _programs(ppo: PPOConfig, env_config: FPiHConfig | None) -> Programs:
+def _programs(ppo: PPOConfig, env_config: FPiHConfig) -> Programs:
     return Programs(ppo, env_config)
 
 
 def programs(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> Programs:
-    """The Programs of a configuration (any step budget), shared by all its Runs in this process (the 4
-    latest kept)."""
-    return _programs(program_config(ppo), env_config)
+    """The Programs of a configuration's `program_config`, shared by all Runs of it in this process (the
+    4 latest kept). Their init and chunk take the run's `RuntimeValues` as their last argument."""
+    return _programs(*program_config(ppo, env_config))
 
 
 class Run:
@@ -182,15 +191,16 @@ class Run:
         self.spec = spec
         self.dir = pathlib.Path(run_dir)
         self.programs = programs(spec.ppo, spec.env)
-        self.env = self.programs.env
+        self.values = RuntimeValues.of(spec.ppo, spec.env)
+        self.env = make_env(spec.ppo, spec.env)  # the run's own task settings (the programs' are fixed)
         self.trainer: Trainer = self.programs.trainer
 
     def initial_state(self) -> TrainState:
         keys = jax.random.split(jax.random.PRNGKey(self.spec.seed), self.spec.num_seeds)
-        return self.programs.init(keys)
+        return self.programs.init(keys, self.values)
 
     def chunk(self, state: TrainState):
-        return self.programs.chunk(state)
+        return self.programs.chunk(state, self.values)
 
     def restore_latest(self) -> TrainState:
         return checkpoints.restore(checkpoints.latest_dir(self.dir), self.programs.state_shapes(self.spec.num_seeds))

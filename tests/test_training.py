@@ -4,7 +4,9 @@ errors."""
 
 import match_jax  # noqa: F401
 
+import dataclasses
 import json
+import math
 import os
 import pathlib
 import subprocess
@@ -12,13 +14,15 @@ import sys
 import threading
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import train as train_cli
 from match_jax import checkpoints
+from match_jax.envs import FPiHConfig
 from match_jax.envs.point_mass import PointMassConfig, PointMassEnv
-from match_jax.ppo import make_trainer
+from match_jax.ppo import RuntimeValues, make_trainer
 from match_jax.presets import get_preset
 from match_jax.training import (Run, RunError, RunSpec, _CheckpointWriter, export_actors, load_policies, load_policy,
                                 read_metrics, train)
@@ -54,6 +58,46 @@ def test_each_method_trains_and_checkpoints_restore_bit_identically(method, tmp_
     # a fresh state, a chunk's output and a restored one have the same types: one compile of the chunk
     types = lambda tree: jax.tree_util.tree_map(lambda x: (x.shape, x.dtype, x.weak_type), tree)  # noqa: E731
     assert types(initial) == types(state) == types(restored)
+
+
+def test_ssl_weight_as_an_argument_trains_as_the_configured_weight():
+    """The SSL weight passed at run time (`RuntimeValues`, how the suite's SSL and no-SSL runs share one
+    program) trains exactly as the configured weight: beta 0 as an argument of a beta-1 trainer gives
+    the no-SSL trainer's chunk, beta 1 another one."""
+    ppo = get_preset("tiny", method="match", ssl_coef=1.0)
+    env = PointMassEnv(PointMassConfig(control=ppo.control))
+    shared = make_trainer(ppo, env)
+    keys = jax.random.split(jax.random.PRNGKey(0), 2)
+    start = jax.jit(shared.init)(keys)
+    chunk = jax.jit(shared.train_chunk)
+    values = RuntimeValues.of(ppo, None)
+    without, m0 = chunk(start, values._replace(ssl_beta=jnp.float32(0.0)))
+    with_ssl, m1 = chunk(start, values)
+    nossl = make_trainer(dataclasses.replace(ppo, ssl_coef=0.0), env)
+    reference, mref = jax.jit(nossl.train_chunk)(start)
+    assert chunk._cache_size() == 1
+    for a, b in zip(jax.tree_util.tree_leaves(without.params), jax.tree_util.tree_leaves(reference.params)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(m0["loss"]), np.asarray(mref["loss"]), rtol=1e-5)
+    assert not np.allclose(np.asarray(m1["loss"]), np.asarray(m0["loss"]))  # the SSL term counts at beta 1
+
+
+def test_runs_differing_in_ssl_break_force_or_noise_share_programs():
+    """The suite's MATCH, MATCH (no SSL), MATCH (unbreakable) and a 2.5 mm-noise MATCH share one Programs
+    (nothing compiled here); each Run keeps its own values and its own env settings."""
+    base = RunSpec(ppo=get_preset("tiny", method="match"))
+    variants = [base, RunSpec(ppo=get_preset("tiny", method="match", ssl_coef=0.0, total_steps=999)),
+                RunSpec(ppo=base.ppo, env=FPiHConfig(control="hybrid", break_force=math.inf)),
+                RunSpec(ppo=base.ppo, env=FPiHConfig(control="hybrid", hole_obs_noise=0.0025))]
+    runs = [Run(spec, "unused") for spec in variants]
+    assert all(run.programs is runs[0].programs for run in runs)
+    assert [float(run.values.ssl_beta) for run in runs] == [pytest.approx(0.3), 0.0, pytest.approx(0.3), pytest.approx(0.3)]
+    assert float(runs[2].values.break_force) == math.inf and runs[2].env.config.break_force == math.inf
+    assert float(runs[3].values.hole_obs_noise) == pytest.approx(0.0025) and runs[3].env.config.hole_obs_noise == 0.0025
+    others = [RunSpec(ppo=get_preset("tiny", method="hybrid")),
+              RunSpec(ppo=get_preset("tiny", method="match", ssl_phase="after", ssl_coef=0.0)),
+              RunSpec(ppo=base.ppo, env=FPiHConfig(control="hybrid", break_sampling="policy_step"))]
+    assert all(Run(spec, "unused").programs is not runs[0].programs for spec in others)
 
 
 def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypatch, capsys):
@@ -198,7 +242,7 @@ def test_envs_shard_over_host_devices(tmp_path):
         "    leaf = state.env_state.obs['state']\n"
         "    assert len(leaf.sharding.device_set) == 2 and leaf.sharding.spec[1] == 'envs', leaf.sharding\n"
         "    state, m = run.chunk(state)\n"
-        "    hlo = run.programs.chunk.lower(state).compile().as_text()\n"
+        "    hlo = run.programs.chunk.lower(state, run.values).compile().as_text()\n"
         "    synced = [l for l in hlo.splitlines() if 'rollout_step' in l and re.search(COLLECTIVE, l)]\n"
         "    assert not synced, synced[0][:300]\n"
         "    for key in ('mean_reward', 'contact_fraction', 'episodes'):\n"

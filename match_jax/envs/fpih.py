@@ -11,6 +11,7 @@ force the robot applies to the environment, world frame (pressing down gives F_z
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 
@@ -156,6 +157,18 @@ class FPiHEnv(BraxEnv):
         self._peg_tip_below_ee = self._nominal_peg_tip_below_ee()
         self._home_qpos = self._nominal_qpos()
         self._obs_sizes = None
+        self._break_force, self._hole_obs_noise = config.break_force, config.hole_obs_noise
+
+    def with_values(self, break_force=None, hole_obs_noise=None) -> "FPiHEnv":
+        """This env with its break force (N; inf = unbreakable) and hole-observation noise (m: gaussian sd
+        or uniform half-width) taken from these values, which may be traced, instead of its config. The
+        trainer passes them as arguments, so runs that differ only in them share one compiled program."""
+        env = copy.copy(self)
+        if break_force is not None:
+            env._break_force = break_force
+        if hole_obs_noise is not None:
+            env._hole_obs_noise = hole_obs_noise
+        return env
 
     # ----------------------------------------------------------------------------------- set-up
     def _nominal_peg_tip_below_ee(self) -> float:
@@ -250,7 +263,7 @@ class FPiHEnv(BraxEnv):
         min_ee_height = hole_top[2] + self._peg_tip_below_ee + cfg.spawn_min_clearance
         ee_target = ee_target.at[2].set(jnp.maximum(ee_target[2], min_ee_height))
         hand_yaw = jax.random.uniform(k_hand, (), minval=-cfg.hand_yaw_range, maxval=cfg.hand_yaw_range)
-        hole_obs_offset = self._noise(k_obs, cfg.hole_obs_noise, cfg.hole_obs_noise_type, (3,))
+        hole_obs_offset = self._noise(k_obs, self._hole_obs_noise, cfg.hole_obs_noise_type, (3,))
 
         data = sim.make_data(self.mj_model, self.mjx_model)
         half = 0.5 * hole_yaw
@@ -350,7 +363,7 @@ class FPiHEnv(BraxEnv):
         height = tip[2] - hole_pos[2]
         success = ((lateral < cfg.success_radius) & (height < cfg.success_height)).astype(jnp.float32)
         engaged = ((lateral < cfg.success_radius) & (height < cfg.engage_height)).astype(jnp.float32)
-        broken = (break_signal(cfg.break_sampling, max_force, ee_force) >= cfg.break_force).astype(jnp.float32)
+        broken = (break_signal(cfg.break_sampling, max_force, ee_force) >= self._break_force).astype(jnp.float32)
         contact_axes = (jnp.abs(ee_force) > cfg.contact_threshold).astype(jnp.float32)
         in_contact = (jnp.any(contact_axes > 0) | (max_force > cfg.contact_threshold)).astype(jnp.float32)
         had_contact = jnp.maximum(info["had_contact"], in_contact)
