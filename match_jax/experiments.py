@@ -111,8 +111,13 @@ def train_one(cfg: SuiteConfig, name: str, log=print) -> bool:
         summary = train(None, run_dir, resume=True, progress=not cfg.smoke, time_budget_s=budget)
     log(f"[train] {name}: {summary['iterations']} iterations ({summary['env_steps_per_seed']:,} env steps per "
         f"seed{'' if summary['finished'] else ', stopped early: resumable'}), {summary['wall_clock_s']:.0f} s, "
-        f"best success {summary['best_success_rate']}")
+        f"best training success {_rates(summary['best_success_rate'])}")
     return summary["finished"]
+
+
+def _rates(rates) -> str:
+    """Per-seed success rates as '[82%, 0%, none]' (none: no episode ended)."""
+    return "[" + ", ".join("none" if r is None else f"{100 * r:.0f}%" for r in rates) + "]"
 
 
 def _best_iterations(run_dir: pathlib.Path, seeds: int) -> list:

@@ -411,7 +411,7 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         "env_steps_per_s": steps_this_session / max(elapsed, 1e-9),
         "last_success_rate": [r["success_rate"] for r in last_rows],
         "last_break_rate": [r["break_rate"] for r in last_rows],
-        "best_success_rate": best,
+        "best_success_rate": [None if rate < 0 else rate for rate in best],  # None: no episode ended yet
     }
 
 

@@ -139,7 +139,7 @@ def _fake_train(calls):
             checkpoints.save(checkpoints.latest_dir(run_dir), stop, {"iteration": np.asarray(stop)})
         calls.append((run_dir.name, resume, stop))
         return {"finished": stop == total, "iterations": stop, "env_steps_per_seed": stop * per_iteration,
-                "wall_clock_s": 1.0, "best_success_rate": "50%"}
+                "wall_clock_s": 1.0, "best_success_rate": [0.5, None]}
 
     return fake_train
 
@@ -172,7 +172,7 @@ def _fake_grid(calls):
     return fake_grid
 
 
-def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeypatch):
+def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeypatch, capsys):
     """The suite's stages as the slow smoke test runs them (train-only, time budget, evaluation of finished
     runs only, report, export, resume, --skip-training), with training and the MJX rollout replaced by
     stand-ins: everything from the trajectories on (metrics, report, claims, figures) is the real code."""
@@ -190,6 +190,7 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     smoke = ["--smoke", "--out", str(out)]
     assert experiments.main(smoke + ["--only", "pose", "--train-only"]) == 0
     assert trained == [("pose", False, 2)] and evaluated == []  # tiny preset: 64 steps of 32 per iteration
+    assert "best training success [50%, none]" in capsys.readouterr().out  # none: no episode ended
     assert not (out / "eval").exists() and not (out / "REPORT.md").exists()
     # a budget stops MATCH after its first iteration: pose (finished) is evaluated, MATCH is not
     assert experiments.main(smoke + ["--only", "pose,match", "--time-budget-min", "1e-4"]) == 0
