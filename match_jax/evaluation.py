@@ -208,11 +208,12 @@ AXIS_COLUMNS = tuple(f"force_selected_{where}_{axis}" for where in ("contact", "
 
 
 def evaluation_config(ppo: PPOConfig, env_config: FPiHConfig) -> tuple[PPOConfig, FPiHConfig]:
-    """What a run's evaluation program depends on: the method, the policy network and the env, with the
+    """What a run's evaluation program depends on: the policy (method and network) and the env, with the
     settings the grid replaces set to fixed values: learning settings and SSL (training only), break
     force (the rollout is unbreakable, thresholds are applied afterwards) and hole-observation noise (the
     grid sets every episode's offset). Runs that differ only in those share one compiled rollout."""
-    policy = PPOConfig(method=ppo.method, network=ppo.network)
+    # Hybrid-Basic and MATCH differ only in their log-prob: their deterministic policies are one function
+    policy = PPOConfig(method="match" if ppo.method == "hybrid" else ppo.method, network=ppo.network)
     env = dataclasses.replace(env_config, break_force=math.inf, hole_obs_noise=FPiHConfig.hole_obs_noise,
                               hole_obs_noise_type=FPiHConfig.hole_obs_noise_type)
     return policy, env

@@ -160,11 +160,12 @@ def test_break_threshold_from_an_unbreakable_rollout():
 
 def test_runs_differing_in_break_force_noise_or_ssl_share_one_evaluation_program():
     """The evaluation rollout is unbreakable and sets every episode's hole-observation offset, so the
-    suite's MATCH, MATCH (no SSL) and MATCH (unbreakable) runs, and Pose and Pose at 2.5 mm, evaluate
-    with one compiled program per method; another method, network or controller gets its own."""
+    suite's MATCH, MATCH (no SSL), MATCH (unbreakable) and Hybrid-Basic runs evaluate with one compiled
+    program; another action space, network or env gets its own."""
     import dataclasses
     import math
 
+    from match_jax.distributions import make_distribution
     from match_jax.envs import FPiHConfig
     from match_jax.evaluation import _grid_rollout, evaluation_config
     from match_jax.networks import NetworkConfig
@@ -178,8 +179,11 @@ def test_runs_differing_in_break_force_noise_or_ssl_share_one_evaluation_program
                       dataclasses.replace(hybrid, hole_obs_noise=0.0025, hole_obs_noise_type="uniform"))]:
         assert evaluation_config(ppo, env) == match
     assert _grid_rollout(*evaluation_config(PPOConfig(method="match", ssl_coef=0.0), hybrid)) is _grid_rollout(*match)
-    for ppo, env in [(PPOConfig(method="hybrid"), hybrid),
-                     (PPOConfig(method="match", network=NetworkConfig(64, 1, 64, 1)), hybrid),
+    # Hybrid-Basic's deterministic policy is MATCH's (same head, mode and action mapping)
+    assert evaluation_config(PPOConfig(method="hybrid", ssl_coef=0.0), hybrid) == match
+    for name in ("mode", "to_action"):
+        assert getattr(type(make_distribution("hybrid")), name) is getattr(type(make_distribution("match")), name)
+    for ppo, env in [(PPOConfig(method="match", network=NetworkConfig(64, 1, 64, 1)), hybrid),
                      (PPOConfig(method="match"), dataclasses.replace(hybrid, episode_steps=100))]:
         assert evaluation_config(ppo, env) != match
     assert evaluation_config(PPOConfig(method="pose"), FPiHConfig(control="pose")) != match
