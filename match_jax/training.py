@@ -173,14 +173,14 @@ def program_config(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> tupl
     return dataclasses.replace(ppo, **fixed), env_config
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=8)
 def _programs(ppo: PPOConfig, env_config: FPiHConfig) -> Programs:
     return Programs(ppo, env_config)
 
 
 def programs(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> Programs:
     """The Programs of a configuration's `program_config`, shared by all Runs of it in this process (the
-    4 latest kept). Their init and chunk take the run's `RuntimeValues` as their last argument."""
+    8 latest kept). Their init and chunk take the run's `RuntimeValues` as their last argument."""
     return _programs(*program_config(ppo, env_config))
 
 
