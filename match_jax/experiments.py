@@ -475,7 +475,12 @@ def main(argv=None) -> int:
     compile_cache.enable()
     cfg.out.mkdir(parents=True, exist_ok=True)
     command = "python -m match_jax.experiments " + " ".join(sys.argv[1:] if argv is None else argv)
-    results = run_suite(cfg, command)
+    try:
+        results = run_suite(cfg, command)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM (training turns it into KeyboardInterrupt after its chunk)
+        print(f"interrupted: finished runs, evaluations and checkpoints in {cfg.out} are kept; run the same "
+              "command to continue")
+        return 130
     if cfg.train_only:
         print("--train-only: no evaluation, no report")
         return 0

@@ -219,3 +219,15 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     assert experiments.main(smoke + ["--only", "pose,match,vices", "--skip-training"]) == 0
     assert len(trained) == 6 and not (out / "runs" / "vices").exists()
     assert "| VICES |" not in (out / "REPORT.md").read_text()
+
+
+def test_an_interrupted_suite_says_how_to_continue(tmp_path, monkeypatch, capsys):
+    """Ctrl-C or SIGTERM during training: one line naming the run directory and the way on, exit 130."""
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt("signal 15")
+
+    monkeypatch.setattr(experiments, "train", interrupted)
+    assert experiments.main(["--smoke", "--out", str(tmp_path / "suite"), "--only", "pose"]) == 130
+    out = capsys.readouterr().out
+    assert f"interrupted: finished runs, evaluations and checkpoints in {tmp_path / 'suite'} are kept" in out
+    assert "run the same command to continue" in out
