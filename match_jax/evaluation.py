@@ -281,8 +281,15 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     z = jnp.where(is_gauss, z_gauss, z_uniform)
     offsets = jnp.asarray(levels)[None, :, None, None] / 1000.0 * z  # (S, L, E, 3), m
     mesh = batch_mesh(episodes)  # episodes split over the CPU devices (one per core), if they divide evenly
-    keys, offsets = shard_batch(keys, 1, mesh), shard_batch(offsets, 2, mesh)
-    traj = jax.device_get(grid_rollout(keys, stacked, offsets))  # (S, L, T, E, ...)
+    # One (seed, level) per call, `episodes` envs: the control law's batched LAPACK LU splits a large
+    # batch over XLA's CPU thread pool, and on 2 cores a 3-seed x 6-level x 200-episode call deadlocked
+    # that pool (every thread waiting in lapack_sgetrf's ParallelBatchMap).
+    calls = [[jax.device_get(grid_rollout(shard_batch(keys[s:s + 1], 1, mesh),
+                                          jax.tree_util.tree_map(lambda x: x[s:s + 1], stacked),
+                                          shard_batch(offsets[s:s + 1, li:li + 1], 2, mesh)))
+              for li in range(len(levels))] for s in range(spec.num_seeds)]
+    traj = {k: np.concatenate([np.concatenate([c[k] for c in row], axis=1) for row in calls], axis=0)
+            for k in calls[0][0]}  # (S, L, T, E, ...)
     return grid_results(traj, spec, noise_specs, break_forces, env.dt, hybrid, str(run_dir), checkpoint,
                         return_trajectories)
 
