@@ -378,12 +378,12 @@ def format_result(result: dict) -> str:
     names = ("success %", "break %", "time (s)", "force (N)", "F-sel contact %", "F-sel free %",
              "F-sel/axis cont %", "F-sel/axis free %", "break peak %", "break 15Hz %")
     scale = (100, 100, 1, 1, 100, 100, 100, 100, 100, 100)
-    lines = [head, "  seed    " + "".join(f"{n:>17}" for n in names)]
+    lines = [head, "  seed    " + "".join(f"{n:>19}" for n in names)]
     for s in result["per_seed"]:
-        cells = "".join(f"{_fmt(s[c] * k):>17}" for c, k in zip(COLUMNS, scale))
+        cells = "".join(f"{_fmt(s[c] * k):>19}" for c, k in zip(COLUMNS, scale))
         lines.append(f"  {s['seed']:<8}" + cells)
     agg = result["aggregate"]
-    cells = "".join(f"{_fmt_mean_se(agg[c]['mean'] * k, agg[c]['se'] * k):>17}" for c, k in zip(COLUMNS, scale))
+    cells = "".join(f"{_fmt_mean_se(agg[c]['mean'] * k, agg[c]['se'] * k):>19}" for c, k in zip(COLUMNS, scale))
     lines.append("  mean+-SE" + cells)
     return "\n".join(lines)
 

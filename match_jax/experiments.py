@@ -332,8 +332,26 @@ def _selection_lines(results: dict[str, list[dict]]) -> list[str]:
     return lines
 
 
-def _learning_lines(curves: dict[str, dict]) -> list[str]:
-    """Env steps to 50 / 80 / 90 % training success, final and best success, per run."""
+def _status_lines(cfg: SuiteConfig, results: dict[str, list[dict]], curves: dict[str, dict]) -> list[str]:
+    """Which of the suite's runs this report covers (empty when every run is evaluated)."""
+    pending = [n for n in cfg.only if n not in results]
+    if not pending:
+        return []
+    training = [f"{SUITE[n][0]} ({int(curves[n]['env_steps'][-1]):,} of {curves[n]['budget']:,} env steps per seed)"
+                for n in pending if n in curves]
+    waiting = [SUITE[n][0] for n in pending if n not in curves]
+    return ["## Runs in this report", "",
+            f"{len(results)} of {len(cfg.only)} runs are trained and evaluated"
+            + (f": {', '.join(SUITE[n][0] for n in results)}." if results else ".")
+            + (f" Training, not yet evaluated: {'; '.join(training)}." if training else "")
+            + (f" Not started: {', '.join(waiting)}." if waiting else "")
+            + " Runs still training appear in the learning-speed table only, marked (training), and no claim uses "
+              "them. Running the suite's command again continues it.", ""]
+
+
+def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]] | None = None) -> list[str]:
+    """Env steps to 50 / 80 / 90 % training success, final and best success, per run; runs not in
+    `results` (when given) are marked as still training."""
     lines = ["", "## Learning speed (training success, smoothed over one episode per env; mean +- 95 % interval "
               "over the seeds that reached it)", "",
               "| method | env steps per seed | " + " | ".join(f"steps to {100 * t:g} %" for t in STEPS_TO)
@@ -352,7 +370,8 @@ def _learning_lines(curves: dict[str, dict]) -> list[str]:
         last = rate[:, -c["window"]:]
         tail = float(np.nanmean(last)) if np.isfinite(last).any() else float("nan")  # NaN: no episode ended yet
         best = float(np.nanmax(rate)) if np.isfinite(rate).any() else float("nan")
-        lines.append(f"| {SUITE[name][0]} | {int(c['env_steps'][-1]):,} | " + " | ".join(cells)
+        label = SUITE[name][0] + ("" if results is None or name in results else " (training)")
+        lines.append(f"| {label} | {int(c['env_steps'][-1]):,} | " + " | ".join(cells)
                      + f" | {100 * tail:.1f} | {100 * best:.1f} |")
     return lines
 
@@ -374,7 +393,8 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     """OUT/REPORT.md and its three figures from the evaluated runs `results` and every run's training metrics."""
     out = cfg.out
     curves = learning_curves(cfg)
-    plots.learning_curves({SUITE[n][0]: c for n, c in curves.items()}, out / "learning_curves.png",
+    plots.learning_curves({SUITE[n][0] + ("" if n in results else " (training)"): c for n, c in curves.items()},
+                          out / "learning_curves.png",
                           smooth=1 if cfg.smoke else 5)
     plots.noise_robustness({SUITE[n][0]: [r for r in g if r["noise_type"] == "uniform"] for n, g in results.items()},
                            out / "noise_robustness.png")
@@ -394,8 +414,10 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
            "in the ratio, its selection's only training signal.")
         + (" **Smoke run: tiny sizes, the numbers mean nothing.**" if cfg.smoke else ""), "",
     ]
+    lines += _status_lines(cfg, results, curves)
     lines += _table1_lines(results) + _noise_lines(results) + _unbreakable_lines(results) + _selection_lines(results)
-    lines += _learning_lines(curves) + _claims_lines(results, curves)
+    # Learning-speed claims compare finished runs only: a run still training has not had its budget.
+    lines += _learning_lines(curves, results) + _claims_lines(results, {n: c for n, c in curves.items() if n in results})
     lines += ["", "## Figures", "", "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
               "- `noise_robustness.png`: success and break rate vs uniform noise, breakable and unbreakable",
               "- `selection_profile.png`: P(force) per axis over approach / contact / insertion (time-normalised)", ""]
@@ -406,8 +428,8 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
 
 def export_suite(cfg: SuiteConfig, dest: pathlib.Path, log=print) -> pathlib.Path:
     """Copy what the suite shows to `dest` (e.g. a results folder under version control): REPORT.md, the
-    figures, eval/*.json, and per run its config, metrics and best actors (`training.export_actors`: no
-    critic, no optimizer state), so `python eval.py DEST/runs/<name>` evaluates the shipped policies."""
+    figures, eval/*.json, and per evaluated run its config, metrics and best actors (`training.export_actors`:
+    no critic, no optimizer state), so `python eval.py DEST/runs/<name>` evaluates the shipped policies."""
     dest.mkdir(parents=True, exist_ok=True)
     for path in [cfg.out / "REPORT.md", *sorted(cfg.out.glob("*.png"))]:
         if path.exists():
@@ -415,8 +437,8 @@ def export_suite(cfg: SuiteConfig, dest: pathlib.Path, log=print) -> pathlib.Pat
     for path in sorted((cfg.out / "eval").glob("*.json")):
         (dest / "eval").mkdir(exist_ok=True)
         (dest / "eval" / path.name).write_bytes(path.read_bytes())
-    for name in cfg.only:
-        if checkpoints.read_best_record(cfg.out / "runs" / name, 0) is not None:
+    for name in cfg.only:  # the evaluated runs: a run still training has no final best actors yet
+        if (cfg.out / "eval" / f"{name}.json").exists():
             export_actors(cfg.out / "runs" / name, dest / "runs" / name)
     log(f"[export] {dest}")
     return dest

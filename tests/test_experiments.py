@@ -6,6 +6,7 @@ import json
 import math
 import pathlib
 
+import jax
 import numpy as np
 import pytest
 
@@ -43,6 +44,7 @@ def test_smoke_suite_writes_report_and_plots(tmp_path):
     shipped = tmp_path / "shipped"
     assert experiments.main(["--smoke", "--out", str(out), "--only", "pose,match", "--export", str(shipped)]) == 0
     _check_report_and_export(out, shipped)
+    assert "## Runs in this report" not in (out / "REPORT.md").read_text()  # every run evaluated
     for name in ("pose", "match"):
         assert sorted(p.name for p in (shipped / "runs" / name / "actors").iterdir()) == [
             "seed0.json", "seed0.msgpack", "seed1.json", "seed1.msgpack"]
@@ -195,13 +197,19 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     # a budget stops MATCH after its first iteration: pose (finished) is evaluated, MATCH is not
     assert experiments.main(smoke + ["--only", "pose,match", "--time-budget-min", "1e-4"]) == 0
     assert trained[1:] == [("pose", True, 2), ("match", False, 1)] and evaluated == ["pose"]  # pose: nothing left
-    table1 = (out / "REPORT.md").read_text().split("## Noise robustness")[0]
+    report = (out / "REPORT.md").read_text()
+    table1 = report.split("## Noise robustness")[0]
     assert "| Pose |" in table1 and "| MATCH |" not in table1
+    assert ("1 of 2 runs are trained and evaluated: Pose. Training, not yet evaluated: MATCH (32 of 64 env steps "
+            "per seed).") in report
+    assert "| MATCH (training) | 32 |" in report  # its learning curve so far, marked
+    assert "| MATCH learns as fast as Pose (env steps to 80 % training success) | not run |" in report
     # the same command without the budget resumes MATCH, finishes and evaluates it, and exports the suite
     assert experiments.main(smoke + ["--only", "pose,match", "--export", str(shipped)]) == 0
     assert trained[3:] == [("pose", True, 2), ("match", True, 2)]
     assert evaluated == ["pose", "match"] and exported == ["pose", "match"]  # pose's evaluation is reused
     _check_report_and_export(out, shipped)
+    assert "## Runs in this report" not in (out / "REPORT.md").read_text()  # every run evaluated
     grid = json.loads((out / "eval" / "match.json").read_text())
     assert len(grid) == 2 * (1 + len(experiments.SWEEP_MM))  # (training noise + sweep) x (break, unbreakable)
     assert {r["break_force_n"] for r in grid} == {10.0, None} and all(r["best_iterations"] == [2, 2] for r in grid)
@@ -231,3 +239,40 @@ def test_an_interrupted_suite_says_how_to_continue(tmp_path, monkeypatch, capsys
     out = capsys.readouterr().out
     assert f"interrupted: finished runs, evaluations and checkpoints in {tmp_path / 'suite'} are kept" in out
     assert "run the same command to continue" in out
+
+
+SHIPPED = pathlib.Path(__file__).resolve().parents[1] / "results" / "suite_cpu"
+
+
+def test_shipped_suite_policies_load():
+    """Every committed suite run's best actors load as their config says (no critic, no optimizer state),
+    one per seed, each the checkpoint its evaluation used, and act: a finite env action, seeds distinct."""
+    from match_jax.ppo import deterministic_action
+
+    names = sorted(p.name for p in (SHIPPED / "runs").iterdir())
+    assert "match" in names
+    for name in names:
+        run, policies = training.load_policies(SHIPPED / "runs" / name)
+        grid = json.loads((SHIPPED / "eval" / f"{name}.json").read_text())
+        records = [json.loads((SHIPPED / "runs" / name / "actors" / f"seed{i}.json").read_text())
+                   for i in range(run.spec.num_seeds)]
+        assert len(policies) == run.spec.num_seeds == grid[0]["seeds"] == 3, name
+        assert [r["iteration"] for r in records] == grid[0]["best_iterations"], name
+        obs = jax.numpy.zeros((4,) + run.env.observation_size["state"])
+        actions = [np.asarray(deterministic_action(run.trainer, p["params"], p["policy_stats"], obs))
+                   for p in policies]
+        for policy, action in zip(policies, actions):
+            assert set(policy) == {"params", "policy_stats"} and set(policy["params"]) == {"actor"}, name
+            assert action.shape == (4, run.env.action_size) and np.all(np.isfinite(action)), name
+        assert not np.array_equal(actions[0], actions[1]), name  # trained seeds, not copies
+
+
+@pytest.mark.slow
+def test_shipped_match_policies_reproduce_their_evaluation():
+    """The committed MATCH actors, evaluated afresh (other episodes, 60 per seed) at the training noise,
+    succeed and break at the rates of their committed 200-episode evaluation, within sampling error."""
+    committed = next(r for r in json.loads((SHIPPED / "eval" / "match.json").read_text())
+                     if r["noise_type"] == "gaussian" and r["break_force_n"] == 10.0)
+    fresh = evaluation.evaluate_run_grid(SHIPPED / "runs" / "match", 60, seed=7)[0]
+    for key, tolerance in (("success_rate", 0.15), ("break_rate", 0.05)):
+        assert abs(fresh["aggregate"][key]["mean"] - committed["aggregate"][key]["mean"]) < tolerance, key
