@@ -7,7 +7,7 @@
     python eval.py runs/match_cpu --episodes 100 --render results/match_episode.png  # + image strip
 
 A run is evaluated for every seed with the deterministic policy (tanh of the mean, force control
-where p_force > 0.5), all seeds and episodes in one jitted batch, at the training noise unless
+where p_force > 0.5) with one compiled rollout, run once per seed and noise level, at the training noise unless
 --noise-mm / --noise-sweep say otherwise. Printed and written (JSON): per seed and mean +- standard
 error over seeds of success %, break %, time to success (s), mean contact force (N) and, for hybrid
 policies, the force-selection rate on in-contact and on free-space steps.
@@ -41,7 +41,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--break-force", type=float, default=None,
                         help="break threshold in N (default: a run's training value; 10 for baselines)")
     parser.add_argument("--unbreakable", action="store_true", help="no break threshold")
-    parser.add_argument("--batch", type=int, default=0, help="episodes per jitted batch (default: all)")
+    parser.add_argument("--batch", type=int, default=0, help="scripted baselines: episodes per jitted batch (default: all)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=pathlib.Path, default=None, help="write the results here")
     parser.add_argument("--render", type=pathlib.Path, default=None,

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One GPU session, time-boxed: train the experiment suite (cpu preset, 3 seeds, every method as its
-# own process on the one GPU) and a paper-preset MATCH run, then pack the run directories so that
+# own process on the one GPU, so each compiles its own programs) and a paper-preset MATCH run, then pack the run directories so that
 # evaluation (and further training) can go on elsewhere:
 #
 #   bash benchmarks/gpu_suite.sh WORK_DIR [DEADLINE_S] [PACK_DIR]
@@ -13,35 +13,36 @@
 #   suite_best.tgz.partNN  WORK_DIR/suite/runs with metrics, configs and the best checkpoint of each
 #                          seed, split in 15 MiB parts (the device tool returns files up to 16 MiB);
 #                          `cat suite_best.tgz.part* | tar xz` then evaluate and report them with
-#                          `python -m match_jax.experiments --preset cpu --seeds 3 --total-steps 2000000
-#                          --selection-not-in-ratio --out suite --skip-training`
+#                          `python -m match_jax.experiments --preset cpu --seeds 3 --total-steps 2500000
+#                          --episodes 200 --sweep-episodes 200 --out suite --skip-training`
 #   paper_match.tgz        the paper-preset run's metrics and config (its checkpoints are ~100 MB)
 #   logs.tgz               every process's log and nvidia-smi samples
 # The latest checkpoints (for resuming) hold every env's MJX state (~5 MB per seed) and stay behind.
-# Env variables: SUITE_STEPS (env steps per seed, default 2000000), SEEDS (default 3), ONLY (suite runs,
-# default all seven), PAPER=0 (no paper-preset run), MPS=0 (no CUDA MPS daemon), PROBE_S (default 60),
+# Env variables: SUITE_STEPS (env steps per seed, default 2500000), SEEDS (default 3), ONLY (suite runs,
+# default all eleven), RATIO=code (MATCH with the authors'-code ratio, --selection-not-in-ratio), PAPER=0 (no paper-preset run), MPS=0 (no CUDA MPS daemon), PROBE_S (default 60),
 # SMOKE=1 (tiny preset: checks the script itself on a CPU), GPU_XLA_FLAGS (added to XLA_FLAGS, e.g.
 # --xla_gpu_autotune_level=0 to cut compilation; untested here).
 set -uo pipefail
 WORK=${1:?usage: gpu_suite.sh WORK_DIR [DEADLINE_S] [PACK_DIR]}
 DEADLINE=${2:-540}
 PACK=${3:-$WORK}
-STEPS=${SUITE_STEPS:-2000000}
+STEPS=${SUITE_STEPS:-2500000}
+RATIO_ARGS=(); [ "${RATIO:-paper}" = code ] && RATIO_ARGS=(--selection-not-in-ratio)
 SEEDS=${SEEDS:-3}
 PRESET=cpu; PAPER_PRESET=paper
 if [ "${SMOKE:-0}" = 1 ]; then PRESET=tiny; PAPER_PRESET=tiny; STEPS=64; fi
 mkdir -p "$WORK/logs" "$PACK"
 source "$(dirname "$0")/gpu_common.sh"
 gpu_start
-NAMES=${ONLY:-pose,vices,hybrid,match,match_nossl,hybrid_nossl,pose_noise2.5}
+NAMES=${ONLY:-pose,vices,hybrid,match,match_nossl,hybrid_nossl,pose_noise2.5,pose_unbreakable,vices_unbreakable,hybrid_unbreakable,match_unbreakable}
 for name in ${NAMES//,/ }; do
   timeout "$KILL_AT" python -m match_jax.experiments --preset "$PRESET" --seeds "$SEEDS" --total-steps "$STEPS" \
-    --selection-not-in-ratio --out "$WORK/suite" --only "$name" --train-only --time-budget-min "$BUDGET_MIN" \
+    "${RATIO_ARGS[@]}" --out "$WORK/suite" --only "$name" --train-only --time-budget-min "$BUDGET_MIN" \
     >> "$WORK/logs/$name.log" 2>&1 &
 done
 if [ "${PAPER:-1}" = 1 ]; then
   if [ -f "$WORK/paper_match/config.json" ]; then PAPER_ARGS=(--resume)
-  else PAPER_ARGS=(--method match --selection-not-in-ratio --preset "$PAPER_PRESET" --seeds "$SEEDS"); fi
+  else PAPER_ARGS=(--method match "${RATIO_ARGS[@]}" --preset "$PAPER_PRESET" --seeds "$SEEDS"); fi
   timeout "$KILL_AT" python train.py "${PAPER_ARGS[@]}" --out "$WORK/paper_match" --time-budget-min "$BUDGET_MIN" \
     --no-progress >> "$WORK/logs/paper_match.log" 2>&1 &
 fi
