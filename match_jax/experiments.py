@@ -201,7 +201,8 @@ def _row(grid: list[dict], noise_type: str, noise_mm: float | None, breakable: b
 
 def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
     """Per run name: training success (seeds x iterations), env steps per iteration, the smoothing
-    window (iterations spanning one episode per env) and the step budget."""
+    window (iterations spanning one episode per env), the step budget and each seed's best checkpoint
+    (env steps; None where its record does not say)."""
     curves = {}
     for name in cfg.only:
         rows = read_metrics(cfg.out / "runs" / name)
@@ -216,8 +217,10 @@ def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
             rate[r["seed_index"], j] = np.nan if r["success_rate"] is None else r["success_rate"]
             steps[j] = r["env_steps"]
         spec = run_spec(name, cfg)
+        best = [checkpoints.read_best_record(cfg.out / "runs" / name, i) or {} for i in range(len(seeds))]
         curves[name] = {"env_steps": steps, "success_rate": rate, "budget": spec.ppo.total_steps,
-                        "window": math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps)}
+                        "window": math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps),
+                        "best_env_steps": [b.get("env_steps") for b in best]}
     return curves
 
 
@@ -354,8 +357,11 @@ def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]] | No
     `results` (when given) are marked as still training."""
     lines = ["", "## Learning speed (training success, smoothed over one episode per env; mean +- 95 % interval "
               "over the seeds that reached it)", "",
+              "Best checkpoints: where each seed's evaluated policy (highest training success of a chunk) was "
+              "saved; one at the end of the budget means that seed was still improving when training stopped.", "",
               "| method | env steps per seed | " + " | ".join(f"steps to {100 * t:g} %" for t in STEPS_TO)
-              + " | final success % | best success % |", "|---|---|" + "---|" * len(STEPS_TO) + "---|---|"]
+              + " | final success % | best success % | best checkpoints (env steps, per seed) |",
+              "|---|---|" + "---|" * len(STEPS_TO) + "---|---|---|"]
     for name, c in curves.items():
         rate = c["success_rate"]
         cells = []
@@ -371,8 +377,10 @@ def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]] | No
         tail = float(np.nanmean(last)) if np.isfinite(last).any() else float("nan")  # NaN: no episode ended yet
         best = float(np.nanmax(rate)) if np.isfinite(rate).any() else float("nan")
         label = SUITE[name][0] + ("" if results is None or name in results else " (training)")
+        kept = " / ".join("-" if x is None else f"{x / 1e6:.2f}M" if x >= 1e5 else f"{x:,}"
+                          for x in c.get("best_env_steps", []))
         lines.append(f"| {label} | {int(c['env_steps'][-1]):,} | " + " | ".join(cells)
-                     + f" | {100 * tail:.1f} | {100 * best:.1f} |")
+                     + f" | {100 * tail:.1f} | {100 * best:.1f} | {kept} |")
     return lines
 
 

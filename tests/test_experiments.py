@@ -136,7 +136,8 @@ def _fake_train(calls):
                     f.write(json.dumps(row) + "\n")
         for i in range(spec.num_seeds):
             checkpoints.best_dir(run_dir, i).mkdir(parents=True, exist_ok=True)
-            checkpoints.write_best_record(run_dir, i, {"iteration": stop, "success_rate": stop / total})
+            checkpoints.write_best_record(run_dir, i, {"iteration": stop, "success_rate": stop / total,
+                                                       "env_steps": stop * per_iteration})
         if stop > done:
             checkpoints.save(checkpoints.latest_dir(run_dir), stop, {"iteration": np.asarray(stop)})
         calls.append((run_dir.name, resume, stop))
@@ -203,6 +204,7 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     assert ("1 of 2 runs are trained and evaluated: Pose. Training, not yet evaluated: MATCH (32 of 64 env steps "
             "per seed).") in report
     assert "| MATCH (training) | 32 |" in report  # its learning curve so far, marked
+    assert "| 75.0 | 100.0 | 64 / 64 |" in report  # Pose: final, best success and where each seed's best is
     assert "| MATCH learns as fast as Pose (env steps to 80 % training success) | not run |" in report
     # the same command without the budget resumes MATCH, finishes and evaluates it, and exports the suite
     assert experiments.main(smoke + ["--only", "pose,match", "--export", str(shipped)]) == 0
