@@ -427,7 +427,8 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     # Learning-speed claims compare finished runs only: a run still training has not had its budget.
     lines += _learning_lines(curves, results) + _claims_lines(results, {n: c for n, c in curves.items() if n in results})
     lines += ["", "## Figures", "", "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
-              "- `noise_robustness.png`: success and break rate vs uniform noise, breakable and unbreakable",
+              "- `noise_robustness.png`: success and break rate vs uniform noise, breakable and unbreakable (error bars: "
+              "standard error over seeds)",
               "- `selection_profile.png`: P(force) per axis over approach / contact / insertion (time-normalised)", ""]
     path = out / "REPORT.md"
     path.write_text("\n".join(lines))
