@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # One GPU session, time-boxed: train the experiment suite (cpu preset, 3 seeds, every method as its
-# own process on the one GPU, so each compiles its own programs) and a paper-preset MATCH run, then pack the run directories so that
-# evaluation (and further training) can go on elsewhere:
+# own process on the one GPU, so each compiles its own programs) and a paper-preset MATCH run, then
+# pack the run directories so that evaluation (and further training) can go on elsewhere:
 #
 #   bash benchmarks/gpu_suite.sh WORK_DIR [DEADLINE_S] [PACK_DIR]
 #
@@ -19,7 +19,8 @@
 #   logs.tgz               every process's log and nvidia-smi samples
 # The latest checkpoints (for resuming) hold every env's MJX state (~5 MB per seed) and stay behind.
 # Env variables: SUITE_STEPS (env steps per seed, default 2500000), SEEDS (default 3), ONLY (suite runs,
-# default all eleven), RATIO=code (MATCH with the authors'-code ratio, --selection-not-in-ratio), PAPER=0 (no paper-preset run), MPS=0 (no CUDA MPS daemon), PROBE_S (default 60),
+# default all eleven), RATIO=code (MATCH with the authors'-code ratio, --selection-not-in-ratio),
+# PAPER=0 (no paper-preset run), MPS=0 (no CUDA MPS daemon), PROBE_S (default 60),
 # SMOKE=1 (tiny preset: checks the script itself on a CPU), GPU_XLA_FLAGS (added to XLA_FLAGS, e.g.
 # --xla_gpu_autotune_level=0 to cut compilation; untested here).
 set -uo pipefail

@@ -352,9 +352,14 @@ def _status_lines(cfg: SuiteConfig, results: dict[str, list[dict]], curves: dict
               "them. Running the suite's command again continues it.", ""]
 
 
-def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]] | None = None) -> list[str]:
+def _label(name: str, results: dict[str, list[dict]]) -> str:
+    """A run's label in the learning table and curve, marked while it is not evaluated yet."""
+    return SUITE[name][0] + ("" if name in results else " (training)")
+
+
+def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]]) -> list[str]:
     """Env steps to 50 / 80 / 90 % training success, final and best success, per run; runs not in
-    `results` (when given) are marked as still training."""
+    `results` are marked as still training."""
     lines = ["", "## Learning speed (training success, smoothed over one episode per env; mean +- 95 % interval "
               "over the seeds that reached it)", "",
               "Best checkpoints: where each seed's evaluated policy (highest training success of a chunk) was "
@@ -376,10 +381,9 @@ def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]] | No
         last = rate[:, -c["window"]:]
         tail = float(np.nanmean(last)) if np.isfinite(last).any() else float("nan")  # NaN: no episode ended yet
         best = float(np.nanmax(rate)) if np.isfinite(rate).any() else float("nan")
-        label = SUITE[name][0] + ("" if results is None or name in results else " (training)")
         kept = " / ".join("-" if x is None else f"{x / 1e6:.2f}M" if x >= 1e5 else f"{x:,}"
                           for x in c.get("best_env_steps", []))
-        lines.append(f"| {label} | {int(c['env_steps'][-1]):,} | " + " | ".join(cells)
+        lines.append(f"| {_label(name, results)} | {int(c['env_steps'][-1]):,} | " + " | ".join(cells)
                      + f" | {100 * tail:.1f} | {100 * best:.1f} | {kept} |")
     return lines
 
@@ -401,8 +405,7 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     """OUT/REPORT.md and its three figures from the evaluated runs `results` and every run's training metrics."""
     out = cfg.out
     curves = learning_curves(cfg)
-    plots.learning_curves({SUITE[n][0] + ("" if n in results else " (training)"): c for n, c in curves.items()},
-                          out / "learning_curves.png",
+    plots.learning_curves({_label(n, results): c for n, c in curves.items()}, out / "learning_curves.png",
                           smooth=1 if cfg.smoke else 5)
     plots.noise_robustness({SUITE[n][0]: [r for r in g if r["noise_type"] == "uniform"] for n, g in results.items()},
                            out / "noise_robustness.png")
