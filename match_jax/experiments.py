@@ -199,8 +199,12 @@ def _row(grid: list[dict], noise_type: str, noise_mm: float | None, breakable: b
     return None
 
 
+# Training metrics kept per seed and iteration for the report (NaN where a row does not have them).
+CURVE_KEYS = ("success_rate", "break_rate", "episodes", "contact_fraction", "p_force_free_axis")
+
+
 def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
-    """Per run name: training success (seeds x iterations), env steps per iteration, the smoothing
+    """Per run name: the CURVE_KEYS metrics (seeds x iterations), env steps per iteration, the smoothing
     window (iterations spanning one episode per env), the step budget and each seed's best checkpoint
     (env steps; None where its record does not say)."""
     curves = {}
@@ -210,15 +214,16 @@ def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
             continue
         seeds = sorted({r["seed_index"] for r in rows})
         iterations = sorted({r["iteration"] for r in rows})
-        rate = np.full((len(seeds), len(iterations)), np.nan)
+        logged = {key: np.full((len(seeds), len(iterations)), np.nan) for key in CURVE_KEYS}
         steps = np.zeros(len(iterations))
         for r in rows:
             j = iterations.index(r["iteration"])
-            rate[r["seed_index"], j] = np.nan if r["success_rate"] is None else r["success_rate"]
+            for key in CURVE_KEYS:
+                logged[key][r["seed_index"], j] = np.nan if r.get(key) is None else r[key]
             steps[j] = r["env_steps"]
         spec = run_spec(name, cfg)
         best = [checkpoints.read_best_record(cfg.out / "runs" / name, i) or {} for i in range(len(seeds))]
-        curves[name] = {"env_steps": steps, "success_rate": rate, "budget": spec.ppo.total_steps,
+        curves[name] = {"env_steps": steps, **logged, "budget": spec.ppo.total_steps,
                         "window": math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps),
                         "best_env_steps": [b.get("env_steps") for b in best]}
     return curves
@@ -388,6 +393,57 @@ def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]]) -> 
     return lines
 
 
+EARLY_STEPS = (250_000, 500_000, 1_000_000)  # env steps per seed at which the early-training table reads
+EARLY_BREAK_STEPS = 100_000  # the first env steps per seed whose episodes' breaks it counts
+
+
+def early_training(curve: dict) -> dict:
+    """What a run met in its first env steps, mean over seeds: the fraction of episodes ending in its first
+    EARLY_BREAK_STEPS that broke the peg; the fraction of env steps in contact and P(force) on free-space
+    axes (training rollouts), averaged over the one-episode window ending at each of EARLY_STEPS (NaN
+    past the steps trained); P(force) on free axes in the first iteration."""
+    steps, window = curve["env_steps"], curve["window"]
+    first = steps <= max(EARLY_BREAK_STEPS, steps[0])
+    breaks = np.nansum(curve["break_rate"][:, first] * curve["episodes"][:, first], axis=1)
+    episodes = np.nansum(curve["episodes"][:, first], axis=1)
+
+    def at(key, n):
+        if steps[-1] < n:
+            return float("nan")
+        j = int(np.searchsorted(steps, n, side="right"))  # iterations [j - window, j) end at or before n
+        block = curve[key][:, max(j - window, 0):max(j, 1)]
+        return float(np.nanmean(block)) if np.isfinite(block).any() else float("nan")
+
+    per_seed = np.where(episodes > 0, breaks / np.where(episodes > 0, episodes, 1.0), np.nan)
+    return {"break_rate": float(np.nanmean(per_seed)) if np.isfinite(per_seed).any() else float("nan"),
+            "contact_fraction": [at("contact_fraction", n) for n in EARLY_STEPS],
+            "p_force_free_start": float(np.nanmean(curve["p_force_free_axis"][:, 0]))
+            if np.isfinite(curve["p_force_free_axis"][:, 0]).any() else float("nan"),
+            "p_force_free": [at("p_force_free_axis", n) for n in EARLY_STEPS]}
+
+
+def _early_lines(curves: dict[str, dict], results: dict[str, list[dict]]) -> list[str]:
+    """The early-training table: breaks met at the start, and how soon each run reaches the block."""
+    def pct(x):
+        return "-" if math.isnan(x) else f"{100 * x:.1f}"
+
+    marks = " / ".join(f"{n / 1e6:g}M" for n in EARLY_STEPS)
+    lines = ["", "## Early training (training rollouts, mean over seeds)", "",
+             f"Breaks: episodes that broke the peg among those ending in the first {EARLY_BREAK_STEPS:,} env steps "
+             f"per seed. Contact and P(force) on free-space axes: averaged over the one-episode window ending at "
+             f"{marks} env steps ('-': not trained that far).", "",
+             f"| method | breaks %, first {EARLY_BREAK_STEPS / 1e6:g}M steps | env steps in contact % at {marks} "
+             f"| P(force) on free axes %, first iteration | P(force) on free axes % at {marks} |",
+             "|---|---|---|---|---|"]
+    for name, c in curves.items():
+        e = early_training(c)
+        lines.append(f"| {_label(name, results)} | {pct(e['break_rate'])} | "
+                     + " / ".join(pct(x) for x in e["contact_fraction"]) + f" | {pct(e['p_force_free_start'])} | "
+                     + ("-" if math.isnan(e["p_force_free_start"]) else " / ".join(pct(x) for x in e["p_force_free"]))
+                     + " |")
+    return lines
+
+
 def _claims_lines(results: dict[str, list[dict]], curves: dict[str, dict]) -> list[str]:
     """The paper's claims with their verdicts at this suite's seeds."""
     lines = ["", "## The paper's claims at this suite's seeds", "",
@@ -428,7 +484,7 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     lines += _status_lines(cfg, results, curves)
     lines += _table1_lines(results) + _noise_lines(results) + _unbreakable_lines(results) + _selection_lines(results)
     # Learning-speed claims compare finished runs only: a run still training has not had its budget.
-    lines += _learning_lines(curves, results) + _claims_lines(results, {n: c for n, c in curves.items() if n in results})
+    lines += _learning_lines(curves, results) + _early_lines(curves, results) + _claims_lines(results, {n: c for n, c in curves.items() if n in results})
     lines += ["", "## Figures", "", "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
               "- `noise_robustness.png`: success and break rate vs uniform noise, breakable and unbreakable (error bars: "
               "standard error over seeds)",

@@ -206,6 +206,7 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     assert "| MATCH (training) | 32 |" in report  # its learning curve so far, marked
     assert "| 75.0 | 100.0 | 64 / 64 |" in report  # Pose: final, best success and where each seed's best is
     assert "| MATCH learns as fast as Pose (env steps to 80 % training success) | not run |" in report
+    assert "| Pose | 10.0 | - / - / - | 10.0 | - / - / - |" in report  # early training: 64 steps trained
     # the same command without the budget resumes MATCH, finishes and evaluates it, and exports the suite
     assert experiments.main(smoke + ["--only", "pose,match", "--export", str(shipped)]) == 0
     assert trained[3:] == [("pose", True, 2), ("match", True, 2)]
@@ -229,6 +230,28 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     assert experiments.main(smoke + ["--only", "pose,match,vices", "--skip-training"]) == 0
     assert len(trained) == 6 and not (out / "runs" / "vices").exists()
     assert "| VICES |" not in (out / "REPORT.md").read_text()
+
+
+def test_early_training_reads_breaks_contact_and_free_space_force_selection():
+    """Breaks are pooled over the episodes of the first 0.1M steps per seed; contact and P(force) are
+    window means ending at each mark, NaN past the steps trained and for a run without selections."""
+    steps = np.arange(1, 13) * 50_000.0  # 12 iterations of 50k env steps: 0.05M ... 0.6M
+    nan = np.full((2, 12), np.nan)
+    curve = {"env_steps": steps, "window": 2, "episodes": np.full((2, 12), 10.0), "break_rate": np.zeros((2, 12)),
+             "contact_fraction": np.stack([np.arange(12) / 100, np.arange(12) / 50]), "p_force_free_axis": nan}
+    curve["episodes"][:, :2] = [[10.0, 30.0], [0.0, 10.0]]
+    curve["break_rate"][:, :2] = [[0.5, 0.0], [np.nan, 1.0]]  # seed 1 ended no episode in its first iteration
+    curve["break_rate"][:, 2:] = 1.0  # after the first 0.1M steps: not counted
+    early = experiments.early_training(curve)
+    assert early["break_rate"] == pytest.approx((5 / 40 + 10 / 10) / 2)
+    at_250k, at_500k, at_1m = early["contact_fraction"]  # iterations 4-5 (0.2M, 0.25M), 9-10 (0.45M, 0.5M)
+    assert at_250k == pytest.approx((0.03 + 0.04 + 0.06 + 0.08) / 4)
+    assert at_500k == pytest.approx((0.08 + 0.09 + 0.16 + 0.18) / 4)
+    assert math.isnan(at_1m) and math.isnan(early["p_force_free_start"])
+    curve["p_force_free_axis"] = np.full((2, 12), 0.02)
+    curve["p_force_free_axis"][:, 0] = 0.06
+    early = experiments.early_training(curve)
+    assert early["p_force_free_start"] == pytest.approx(0.06) and early["p_force_free"][1] == pytest.approx(0.02)
 
 
 def test_an_interrupted_suite_says_how_to_continue(tmp_path, monkeypatch, capsys):
