@@ -127,7 +127,7 @@ def build_spec(args: argparse.Namespace):
     env = dataclasses.replace(env, break_sampling=args.break_sampling)
     controller = dataclasses.replace(env.controller, use_task_inertia=args.controller == "paper")
     if args.force_law == "literal":
-        controller = dataclasses.replace(controller, force_feedforward=False, force_damping=(0.0, 0.0, 0.0))
+        controller = controller.with_force_law("literal")
     env = dataclasses.replace(env, controller=controller)
     return RunSpec(ppo=ppo, env=env, num_seeds=args.seeds, seed=args.seed, preset=args.preset)
 

@@ -4,7 +4,8 @@
     python -m match_jax.experiments --smoke --out /tmp/suite_smoke        # every stage, tiny sizes
     python -m match_jax.experiments --only pose,match --out results/suite # a subset
 
-Runs (each with --seeds seeds in one program): Pose, VICES, Hybrid-Basic, MATCH, MATCH (no SSL),
+Runs (each with --seeds seeds in one program): Pose, VICES, Hybrid-Basic, MATCH, MATCH with the authors'
+force law (no feed-forward, no damping on force-controlled axes), MATCH (no SSL),
 Hybrid-Basic (no SSL), Pose trained at 2.5 mm hole noise, and Pose, VICES, Hybrid-Basic and MATCH trained
 with an unbreakable peg. Then, per run, one compiled rollout
 evaluates every seed at the training noise (Table 1, --episodes per seed) and over the uniform noise
@@ -34,25 +35,27 @@ from match_jax.presets import get_preset
 from match_jax.evaluation import evaluate_run_grid
 from match_jax.training import RunSpec, export_actors, is_exported, load_spec, read_metrics, train
 
-# name -> (label, method, ssl on, training hole noise in mm, training break force in N; inf = unbreakable)
+# name -> (label, method, ssl on, training hole noise in mm, training break force in N; inf = unbreakable,
+# force law of the hybrid methods: 'damped' (default) or 'literal' (the authors': `ControllerConfig.with_force_law`))
 SUITE = {
-    "pose": ("Pose", "pose", True, 1.0, 10.0),
-    "vices": ("VICES", "vices", True, 1.0, 10.0),
-    "hybrid": ("Hybrid-Basic", "hybrid", True, 1.0, 10.0),
-    "match": ("MATCH", "match", True, 1.0, 10.0),
-    "match_nossl": ("MATCH (no SSL)", "match", False, 1.0, 10.0),
-    "hybrid_nossl": ("Hybrid-Basic (no SSL)", "hybrid", False, 1.0, 10.0),
-    "pose_noise2.5": ("Pose (trained at 2.5 mm)", "pose", True, 2.5, 10.0),
-    "pose_unbreakable": ("Pose (unbreakable)", "pose", True, 1.0, math.inf),
-    "vices_unbreakable": ("VICES (unbreakable)", "vices", True, 1.0, math.inf),
-    "hybrid_unbreakable": ("Hybrid-Basic (unbreakable)", "hybrid", True, 1.0, math.inf),
-    "match_unbreakable": ("MATCH (unbreakable)", "match", True, 1.0, math.inf),
+    "pose": ("Pose", "pose", True, 1.0, 10.0, "damped"),
+    "vices": ("VICES", "vices", True, 1.0, 10.0, "damped"),
+    "hybrid": ("Hybrid-Basic", "hybrid", True, 1.0, 10.0, "damped"),
+    "match": ("MATCH", "match", True, 1.0, 10.0, "damped"),
+    "match_literal": ("MATCH (authors' force law)", "match", True, 1.0, 10.0, "literal"),
+    "match_nossl": ("MATCH (no SSL)", "match", False, 1.0, 10.0, "damped"),
+    "hybrid_nossl": ("Hybrid-Basic (no SSL)", "hybrid", False, 1.0, 10.0, "damped"),
+    "pose_noise2.5": ("Pose (trained at 2.5 mm)", "pose", True, 2.5, 10.0, "damped"),
+    "pose_unbreakable": ("Pose (unbreakable)", "pose", True, 1.0, math.inf, "damped"),
+    "vices_unbreakable": ("VICES (unbreakable)", "vices", True, 1.0, math.inf, "damped"),
+    "hybrid_unbreakable": ("Hybrid-Basic (unbreakable)", "hybrid", True, 1.0, math.inf, "damped"),
+    "match_unbreakable": ("MATCH (unbreakable)", "match", True, 1.0, math.inf, "damped"),
 }
 # Table 1 of the paper: success %, break % (mean over 5 seeds x 100 episodes).
 PAPER_TABLE1 = {"pose": (95.4, 1.6), "vices": (95.2, 1.4), "hybrid": (98.2, 0.4), "match": (97.0, 0.0),
                 "match_nossl": (82.0, 8.2), "hybrid_nossl": (87.0, 2.6)}
 SWEEP_MM = (0.0, 1.0, 2.5, 5.0, 7.5)
-HYBRID = ("hybrid", "match", "match_nossl", "hybrid_nossl", "hybrid_unbreakable", "match_unbreakable")
+HYBRID = ("hybrid", "match", "match_literal", "match_nossl", "hybrid_nossl", "hybrid_unbreakable", "match_unbreakable")
 
 
 def unbreakable(name: str) -> bool:
@@ -78,7 +81,7 @@ class SuiteConfig:
 
 
 def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
-    _, method, ssl, noise_mm, break_force = SUITE[name]
+    _, method, ssl, noise_mm, break_force, force_law = SUITE[name]
     overrides = {"method": method}
     if not ssl:
         overrides["ssl_coef"] = 0.0
@@ -89,8 +92,9 @@ def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
     if cfg.total_steps is not None:
         overrides["total_steps"] = cfg.total_steps
     ppo = get_preset(cfg.preset, **overrides)
-    env = dataclasses.replace(FPiHConfig(control=ppo.control), hole_obs_noise=noise_mm / 1000.0,
-                              break_force=break_force)
+    env = FPiHConfig(control=ppo.control)
+    env = dataclasses.replace(env, hole_obs_noise=noise_mm / 1000.0, break_force=break_force,
+                              controller=env.controller.with_force_law(force_law))
     return RunSpec(ppo=ppo, env=env, num_seeds=cfg.seeds, preset=cfg.preset)
 
 

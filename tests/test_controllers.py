@@ -200,3 +200,11 @@ def test_action_config_force_z_and_its_inverse():
         assert actions.force_z_action(actions.force_z(a)) == pytest.approx(a)
     assert actions.force_z(1.0) == 0.0 and actions.force_z(-1.0) == -20.0  # (-20, 0) N
     assert actions.stiffness(-1.0) == 0.0 and actions.stiffness(1.0) == 200.0
+
+
+def test_with_force_law_switches_feedforward_and_damping_only():
+    literal = ControllerConfig(pos_stiffness=(50.0, 50.0, 50.0)).with_force_law("literal")
+    assert not literal.force_feedforward and literal.force_damping == (0.0, 0.0, 0.0)
+    assert literal.with_force_law("damped") == ControllerConfig(pos_stiffness=(50.0, 50.0, 50.0))
+    with pytest.raises(ValueError, match="'Literal'"):
+        ControllerConfig().with_force_law("Literal")

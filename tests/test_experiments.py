@@ -2,6 +2,7 @@
 
 import match_jax  # noqa: F401
 
+import dataclasses
 import json
 import math
 import pathlib
@@ -82,6 +83,16 @@ def test_suite_unbreakable_runs_train_without_breaks(tmp_path):
         assert math.isinf(spec.env.break_force) and experiments.unbreakable(name)
         assert spec.ppo.method == experiments.SUITE[name.removesuffix("_unbreakable")][1]
     assert experiments.run_spec("match", cfg).env.break_force == 10.0 and not experiments.unbreakable("match")
+
+
+def test_suite_match_literal_runs_the_authors_force_law_and_only_it(tmp_path):
+    cfg = experiments.parse_args(["--out", str(tmp_path)])
+    literal = experiments.run_spec("match_literal", cfg)
+    assert literal.ppo.method == "match" and not literal.env.controller.force_feedforward
+    assert literal.env.controller.force_damping == (0.0, 0.0, 0.0)
+    default = experiments.run_spec("match", cfg)
+    assert default.env.controller.force_feedforward and default.env.controller.force_damping == (20.0, 20.0, 20.0)
+    assert dataclasses.replace(literal.env, controller=default.env.controller) == default.env  # nothing else differs
 
 
 def test_an_evaluation_is_reused_only_for_the_checkpoints_it_evaluated(tmp_path, monkeypatch):

@@ -58,6 +58,15 @@ class ControllerConfig:
     gravity_compensation: bool = True
     task_inertia_damping: float = 1e-6
 
+    def with_force_law(self, law: str) -> "ControllerConfig":
+        """This config with force law `law`: 'damped' k_f (f_d - f) + f_d - k_vf xdot (the default terms) or
+        'literal' k_f (f_d - f), no feed-forward and no damping (the paper's and the authors' code)."""
+        if law == "damped":
+            return dataclasses.replace(self, force_feedforward=True, force_damping=ControllerConfig.force_damping)
+        if law == "literal":
+            return dataclasses.replace(self, force_feedforward=False, force_damping=(0.0, 0.0, 0.0))
+        raise ValueError(f"force law must be 'damped' or 'literal', got {law!r}")
+
     def __post_init__(self):
         for name in ("pos_stiffness", "rot_stiffness", "force_damping"):
             values = getattr(self, name)
