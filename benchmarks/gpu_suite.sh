@@ -19,7 +19,7 @@
 #   logs.tgz               every process's log and nvidia-smi samples
 # The latest checkpoints (for resuming) hold every env's MJX state (~5 MB per seed) and stay behind.
 # Env variables: SUITE_STEPS (env steps per seed, default 2500000), SEEDS (default 3), ONLY (suite runs,
-# default all eleven), RATIO=code (MATCH with the authors'-code ratio, --selection-not-in-ratio),
+# default all twelve), RATIO=code (MATCH with the authors'-code ratio, --selection-not-in-ratio),
 # PAPER=0 (no paper-preset run), MPS=0 (no CUDA MPS daemon), PROBE_S (default 60),
 # SMOKE=1 (tiny preset: checks the script itself on a CPU), GPU_XLA_FLAGS (added to XLA_FLAGS, e.g.
 # --xla_gpu_autotune_level=0 to cut compilation; untested here).
@@ -35,7 +35,7 @@ if [ "${SMOKE:-0}" = 1 ]; then PRESET=tiny; PAPER_PRESET=tiny; STEPS=64; fi
 mkdir -p "$WORK/logs" "$PACK"
 source "$(dirname "$0")/gpu_common.sh"
 gpu_start
-NAMES=${ONLY:-pose,vices,hybrid,match,match_nossl,hybrid_nossl,pose_noise2.5,pose_unbreakable,vices_unbreakable,hybrid_unbreakable,match_unbreakable}
+NAMES=${ONLY:-pose,vices,hybrid,match,match_literal,match_nossl,hybrid_nossl,pose_noise2.5,pose_unbreakable,vices_unbreakable,hybrid_unbreakable,match_unbreakable}
 for name in ${NAMES//,/ }; do
   timeout "$KILL_AT" python -m match_jax.experiments --preset "$PRESET" --seeds "$SEEDS" --total-steps "$STEPS" \
     "${RATIO_ARGS[@]}" --out "$WORK/suite" --only "$name" --train-only --time-budget-min "$BUDGET_MIN" \

@@ -28,8 +28,8 @@ def _check_report_and_export(out, shipped):
 
 @pytest.mark.slow
 def test_smoke_suite_writes_report_and_plots(tmp_path):
-    """Every stage on two of the eleven runs (a pose-control and a hybrid one), trained and evaluated on
-    the MJX env at tiny sizes; the full `--smoke` trains and evaluates all eleven the same way. The
+    """Every stage on two of the twelve runs (a pose-control and a hybrid one), trained and evaluated on
+    the MJX env at tiny sizes; the full `--smoke` trains and evaluates all twelve the same way. The
     default run checks the same stages with stand-ins for training and the rollout (below)."""
     out = tmp_path / "suite"
     # --train-only trains and stops: no evaluation, no report; the next call finds the run finished
