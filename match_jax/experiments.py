@@ -24,6 +24,7 @@ import math
 import pathlib
 import sys
 import time
+from typing import NamedTuple
 
 import match_jax  # noqa: F401  (fast XLA CPU flag)
 
@@ -35,21 +36,29 @@ from match_jax.presets import get_preset
 from match_jax.evaluation import evaluate_run_grid
 from match_jax.training import RunSpec, export_actors, is_exported, load_spec, read_metrics, train
 
-# name -> (label, method, ssl on, training hole noise in mm, training break force in N; inf = unbreakable,
-# force law of the hybrid methods: 'damped' (default) or 'literal' (the authors': `ControllerConfig.with_force_law`))
+class SuiteRun(NamedTuple):
+    """One run of the suite: what it trains, with what task settings."""
+    label: str
+    method: str  # 'pose', 'vices', 'hybrid' or 'match'
+    ssl: bool  # the selection loss on (hybrid methods)
+    noise_mm: float  # training hole-observation noise (gaussian std, mm)
+    break_force: float  # training break force (N); inf = unbreakable
+    force_law: str  # 'damped' (default) or 'literal' (the authors': `ControllerConfig.with_force_law`)
+
+
 SUITE = {
-    "pose": ("Pose", "pose", True, 1.0, 10.0, "damped"),
-    "vices": ("VICES", "vices", True, 1.0, 10.0, "damped"),
-    "hybrid": ("Hybrid-Basic", "hybrid", True, 1.0, 10.0, "damped"),
-    "match": ("MATCH", "match", True, 1.0, 10.0, "damped"),
-    "match_literal": ("MATCH (authors' force law)", "match", True, 1.0, 10.0, "literal"),
-    "match_nossl": ("MATCH (no SSL)", "match", False, 1.0, 10.0, "damped"),
-    "hybrid_nossl": ("Hybrid-Basic (no SSL)", "hybrid", False, 1.0, 10.0, "damped"),
-    "pose_noise2.5": ("Pose (trained at 2.5 mm)", "pose", True, 2.5, 10.0, "damped"),
-    "pose_unbreakable": ("Pose (unbreakable)", "pose", True, 1.0, math.inf, "damped"),
-    "vices_unbreakable": ("VICES (unbreakable)", "vices", True, 1.0, math.inf, "damped"),
-    "hybrid_unbreakable": ("Hybrid-Basic (unbreakable)", "hybrid", True, 1.0, math.inf, "damped"),
-    "match_unbreakable": ("MATCH (unbreakable)", "match", True, 1.0, math.inf, "damped"),
+    "pose": SuiteRun("Pose", "pose", True, 1.0, 10.0, "damped"),
+    "vices": SuiteRun("VICES", "vices", True, 1.0, 10.0, "damped"),
+    "hybrid": SuiteRun("Hybrid-Basic", "hybrid", True, 1.0, 10.0, "damped"),
+    "match": SuiteRun("MATCH", "match", True, 1.0, 10.0, "damped"),
+    "match_literal": SuiteRun("MATCH (authors' force law)", "match", True, 1.0, 10.0, "literal"),
+    "match_nossl": SuiteRun("MATCH (no SSL)", "match", False, 1.0, 10.0, "damped"),
+    "hybrid_nossl": SuiteRun("Hybrid-Basic (no SSL)", "hybrid", False, 1.0, 10.0, "damped"),
+    "pose_noise2.5": SuiteRun("Pose (trained at 2.5 mm)", "pose", True, 2.5, 10.0, "damped"),
+    "pose_unbreakable": SuiteRun("Pose (unbreakable)", "pose", True, 1.0, math.inf, "damped"),
+    "vices_unbreakable": SuiteRun("VICES (unbreakable)", "vices", True, 1.0, math.inf, "damped"),
+    "hybrid_unbreakable": SuiteRun("Hybrid-Basic (unbreakable)", "hybrid", True, 1.0, math.inf, "damped"),
+    "match_unbreakable": SuiteRun("MATCH (unbreakable)", "match", True, 1.0, math.inf, "damped"),
 }
 # Table 1 of the paper: success %, break % (mean over 5 seeds x 100 episodes).
 PAPER_TABLE1 = {"pose": (95.4, 1.6), "vices": (95.2, 1.4), "hybrid": (98.2, 0.4), "match": (97.0, 0.0),
@@ -60,7 +69,7 @@ HYBRID = ("hybrid", "match", "match_literal", "match_nossl", "hybrid_nossl", "hy
 
 def unbreakable(name: str) -> bool:
     """Whether suite run `name` trains with an unbreakable peg."""
-    return math.isinf(SUITE[name][4])
+    return math.isinf(SUITE[name].break_force)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,11 +90,12 @@ class SuiteConfig:
 
 
 def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
-    _, method, ssl, noise_mm, break_force, force_law = SUITE[name]
-    overrides = {"method": method}
-    if not ssl:
+    """The run spec of suite run `name` under the suite settings `cfg`."""
+    run = SUITE[name]
+    overrides = {"method": run.method}
+    if not run.ssl:
         overrides["ssl_coef"] = 0.0
-    if method == "match" and ssl and not cfg.selection_in_ratio:
+    if run.method == "match" and run.ssl and not cfg.selection_in_ratio:
         # Without the SSL the selection would get no gradient at all out of the ratio, so no-SSL runs
         # always keep it in (the paper's ablation: selection learned by RL alone).
         overrides["selection_in_ratio"] = False
@@ -93,8 +103,8 @@ def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
         overrides["total_steps"] = cfg.total_steps
     ppo = get_preset(cfg.preset, **overrides)
     env = FPiHConfig(control=ppo.control)
-    env = dataclasses.replace(env, hole_obs_noise=noise_mm / 1000.0, break_force=break_force,
-                              controller=env.controller.with_force_law(force_law))
+    env = dataclasses.replace(env, hole_obs_noise=run.noise_mm / 1000.0, break_force=run.break_force,
+                              controller=env.controller.with_force_law(run.force_law))
     return RunSpec(ppo=ppo, env=env, num_seeds=cfg.seeds, preset=cfg.preset)
 
 
@@ -285,7 +295,7 @@ def _table1_lines(results: dict[str, list[dict]]) -> list[str]:
     for name, grid in breakable.items():
         row = _table1_row(grid)
         paper = PAPER_TABLE1.get(name)
-        lines.append(f"| {SUITE[name][0]} | {_fmt(row, 'success_rate', 100)} | {_fmt(row, 'break_rate', 100)} | "
+        lines.append(f"| {SUITE[name].label} | {_fmt(row, 'success_rate', 100)} | {_fmt(row, 'break_rate', 100)} | "
                      f"{_fmt(row, 'break_rate_policy_step', 100)} | "
                      f"{_fmt(row, 'mean_time_to_success_s', 1, 2)} | {_fmt(row, 'mean_force_n', 1, 2)} | "
                      f"{paper[0] if paper else '-'} | {paper[1] if paper else '-'} |")
@@ -304,7 +314,7 @@ def _noise_lines(results: dict[str, list[dict]]) -> list[str]:
                  for r in (_row(grid, "uniform", x, True) for x in SWEEP_MM) if r is not None]
         cells_unb = [_fmt(r, "success_rate", 100) for r in (_row(grid, "uniform", x, False) for x in SWEEP_MM)
                      if r is not None]
-        lines.append(f"| {SUITE[name][0]} | " + " | ".join(cells) + " | " + " | ".join(cells_unb) + " |")
+        lines.append(f"| {SUITE[name].label} | " + " | ".join(cells) + " | " + " | ".join(cells_unb) + " |")
     return lines
 
 
@@ -318,8 +328,8 @@ def _unbreakable_lines(results: dict[str, list[dict]]) -> list[str]:
         for name, grid in results.items():
             cells = [_fmt(r, "success_rate", 100) for r in (_row(grid, "uniform", x, False) for x in SWEEP_MM)
                      if r is not None]
-            trained = "unbreakable" if unbreakable(name) else f"{SUITE[name][4]:g} N"
-            lines.append(f"| {SUITE[name][0]} | {trained} | " + " | ".join(cells) + " |")
+            trained = "unbreakable" if unbreakable(name) else f"{SUITE[name].break_force:g} N"
+            lines.append(f"| {SUITE[name].label} | {trained} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -337,7 +347,7 @@ def _selection_lines(results: dict[str, list[dict]]) -> list[str]:
         if name in HYBRID:
             row = _table1_row(grid)
             xyz = {w: " / ".join(_fmt(row, f"force_selected_{w}_{a}", 100, 0) for a in "xyz") for w in ("contact", "free")}
-            lines.append(f"| {SUITE[name][0]} | {_fmt(row, 'force_selected_contact_per_axis', 100)} | {xyz['contact']} "
+            lines.append(f"| {SUITE[name].label} | {_fmt(row, 'force_selected_contact_per_axis', 100)} | {xyz['contact']} "
                          f"| {_fmt(row, 'force_selected_free_per_axis', 100)} | {xyz['free']} "
                          f"| {_fmt(row, 'p_force_contact', 100)} | {_fmt(row, 'p_force_free', 100)} "
                          f"| {'84 +- 10.8 / 2.9 +- 2.1' if name == 'match' else ''} |")
@@ -349,12 +359,12 @@ def _status_lines(cfg: SuiteConfig, results: dict[str, list[dict]], curves: dict
     pending = [n for n in cfg.only if n not in results]
     if not pending:
         return []
-    training = [f"{SUITE[n][0]} ({int(curves[n]['env_steps'][-1]):,} of {curves[n]['budget']:,} env steps per seed)"
+    training = [f"{SUITE[n].label} ({int(curves[n]['env_steps'][-1]):,} of {curves[n]['budget']:,} env steps per seed)"
                 for n in pending if n in curves]
-    waiting = [SUITE[n][0] for n in pending if n not in curves]
+    waiting = [SUITE[n].label for n in pending if n not in curves]
     return ["## Runs in this report", "",
             f"{len(results)} of {len(cfg.only)} runs are trained and evaluated"
-            + (f": {', '.join(SUITE[n][0] for n in results)}." if results else ".")
+            + (f": {', '.join(SUITE[n].label for n in results)}." if results else ".")
             + (f" Training, not yet evaluated: {'; '.join(training)}." if training else "")
             + (f" Not started: {', '.join(waiting)}." if waiting else "")
             + " Runs still training appear in the learning-speed table only, marked (training), and no claim uses "
@@ -363,7 +373,7 @@ def _status_lines(cfg: SuiteConfig, results: dict[str, list[dict]], curves: dict
 
 def _label(name: str, results: dict[str, list[dict]]) -> str:
     """A run's label in the learning table and curve, marked while it is not evaluated yet."""
-    return SUITE[name][0] + ("" if name in results else " (training)")
+    return SUITE[name].label + ("" if name in results else " (training)")
 
 
 def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]]) -> list[str]:
@@ -467,9 +477,9 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     curves = learning_curves(cfg)
     plots.learning_curves({_label(n, results): c for n, c in curves.items()}, out / "learning_curves.png",
                           smooth=1 if cfg.smoke else 5)
-    plots.noise_robustness({SUITE[n][0]: [r for r in g if r["noise_type"] == "uniform"] for n, g in results.items()},
+    plots.noise_robustness({SUITE[n].label: [r for r in g if r["noise_type"] == "uniform"] for n, g in results.items()},
                            out / "noise_robustness.png")
-    profiles = {SUITE[n][0]: _table1_row(g)["selection_profile"] for n, g in results.items() if n in HYBRID}
+    profiles = {SUITE[n].label: _table1_row(g)["selection_profile"] for n, g in results.items() if n in HYBRID}
     plots.selection_profile(profiles, out / "selection_profile.png")
 
     preset = get_preset(cfg.preset)

@@ -81,7 +81,7 @@ def test_suite_unbreakable_runs_train_without_breaks(tmp_path):
     for name in ("pose_unbreakable", "vices_unbreakable", "hybrid_unbreakable", "match_unbreakable"):
         spec = experiments.run_spec(name, cfg)
         assert math.isinf(spec.env.break_force) and experiments.unbreakable(name)
-        assert spec.ppo.method == experiments.SUITE[name.removesuffix("_unbreakable")][1]
+        assert spec.ppo.method == experiments.SUITE[name.removesuffix("_unbreakable")].method
     assert experiments.run_spec("match", cfg).env.break_force == 10.0 and not experiments.unbreakable("match")
 
 
