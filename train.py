@@ -62,7 +62,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "(k_p x task inertia: 240-630 N/m at the spawn pose)")
     parser.add_argument("--force-law", choices=["damped", "literal"], default="damped",
                         help="force-controlled axes: k_f (f_d - f) + f_d - k_vf xdot (default) or the literal "
-                             "k_f (f_d - f), no feed-forward and no damping (the paper's and the authors' law)")
+                             "k_f (f_d - f), no feed-forward and no damping (the authors' code; the paper's equation "
+                             "without its M_x)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run directory")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks (resumable)")

@@ -367,7 +367,7 @@ def _status_lines(cfg: SuiteConfig, results: dict[str, list[dict]], curves: dict
             + (f": {', '.join(SUITE[n].label for n in results)}." if results else ".")
             + (f" Training, not yet evaluated: {'; '.join(training)}." if training else "")
             + (f" Not started: {', '.join(waiting)}." if waiting else "")
-            + " Runs still training appear in the learning-speed table only, marked (training), and no claim uses "
+            + " Runs still training appear in the learning-speed and early-training tables only, marked (training), and no claim uses "
               "them. Running the suite's command again continues it.", ""]
 
 

@@ -70,8 +70,10 @@ def test_steps_to_smooths_over_the_window():
 def test_check_claims_reads_the_right_runs_and_metrics():
     table = {("pose", "break"): [0.2, 0.25, 0.3], ("match", "break"): [0.0, 0.0, 0.01],
              ("hybrid", "break"): [0.2, 0.3, 0.25], ("match", "force_contact"): [0.8, 0.9, 0.85],
-             ("match", "force_free"): [0.3, 0.2, 0.25]}
-    speed = {"match": [1e6, 1.1e6, 0.9e6], "pose": [1e6, 1.05e6, 0.95e6], "hybrid": [3e6, 3e6, 2.9e6]}
+             ("match", "force_free"): [0.3, 0.2, 0.25], ("pose", "success"): [0.9, 0.88, 0.86],
+             ("match_literal", "success"): [0.97, 0.98, 0.96]}
+    speed = {"match": [1e6, 1.1e6, 0.9e6], "pose": [1e6, 1.05e6, 0.95e6], "hybrid": [3e6, 3e6, 2.9e6],
+             "match_literal": [2e6, 2.1e6, 2.2e6]}
     found = {c.text: c for c in claims.check_claims(lambda run, metric: table.get((run, metric), []),
                                                     lambda run, threshold: (speed.get(run, []), False))}
     assert found["MATCH breaks less than Pose (10 N, training noise)"].verdict == claims.HOLDS
@@ -81,4 +83,10 @@ def test_check_claims_reads_the_right_runs_and_metrics():
     assert found["MATCH selects force on most in-contact axes (paper: 84 %)"].verdict == claims.HOLDS
     assert found["MATCH rarely selects force on free-space axes (paper: 2.9 %)"].verdict == claims.FAILS
     assert found["MATCH without the SSL succeeds less often"].verdict == claims.MISSING
+    # MATCH with the authors' force law is read from its own run, against Pose
+    literal = found["MATCH with the authors' force law succeeds more often than Pose"]
+    assert literal.verdict == claims.HOLDS and literal.numbers == "97.0 % vs 88.0 %"
+    assert found["MATCH succeeds more often than Pose"].verdict == claims.MISSING
+    slower = found["MATCH with the authors' force law learns as fast as Pose (env steps to 80 % training success)"]
+    assert slower.verdict == claims.FAILS and slower.numbers == "2.10M vs 1.00M"
     assert found["MATCH breaks less than Pose (10 N, training noise)"].numbers == "0.3 % vs 25.0 %"

@@ -60,7 +60,8 @@ class ControllerConfig:
 
     def with_force_law(self, law: str) -> "ControllerConfig":
         """This config with force law `law`: 'damped' k_f (f_d - f) + f_d - k_vf xdot (the default terms) or
-        'literal' k_f (f_d - f), no feed-forward and no damping (the paper's and the authors' code)."""
+        'literal' k_f (f_d - f), no feed-forward and no damping (the authors' code; the paper's
+        equation without the M_x that `force_through_task_inertia` adds)."""
         if law == "damped":
             return dataclasses.replace(self, force_feedforward=True, force_damping=ControllerConfig.force_damping)
         if law == "literal":
