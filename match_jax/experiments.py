@@ -64,7 +64,7 @@ SUITE = {
 PAPER_TABLE1 = {"pose": (95.4, 1.6), "vices": (95.2, 1.4), "hybrid": (98.2, 0.4), "match": (97.0, 0.0),
                 "match_nossl": (82.0, 8.2), "hybrid_nossl": (87.0, 2.6)}
 SWEEP_MM = (0.0, 1.0, 2.5, 5.0, 7.5)
-HYBRID = ("hybrid", "match", "match_literal", "match_nossl", "hybrid_nossl", "hybrid_unbreakable", "match_unbreakable")
+HYBRID = tuple(name for name, run in SUITE.items() if run.method in ("hybrid", "match"))  # runs with selections
 
 
 def unbreakable(name: str) -> bool:
