@@ -11,6 +11,8 @@ with an unbreakable peg. Then, per run, one compiled rollout
 evaluates every seed at the training noise (Table 1, --episodes per seed) and over the uniform noise
 sweep (0, 1, 2.5, 5, 7.5 mm; --sweep-episodes per seed), each with the run's break force and unbreakable.
 Resumable: finished runs and evaluations are skipped, interrupted runs resume from their checkpoint.
+An exported suite (--export: report, eval JSONs, best actors) copied into OUT counts its runs as trained
+and evaluated, so a suite continues from its committed results on a new machine.
 Writes OUT/runs/<name>/ (training), OUT/eval/<name>.json, and OUT/REPORT.md with
 learning_curves.png, noise_robustness.png and selection_profile.png.
 """
@@ -34,7 +36,8 @@ from match_jax import checkpoints, claims, compile_cache, plots
 from match_jax.envs import FPiHConfig
 from match_jax.presets import get_preset
 from match_jax.evaluation import evaluate_run_grid
-from match_jax.training import RunSpec, export_actors, is_exported, load_spec, read_metrics, train
+from match_jax.checkpoints import CheckpointError
+from match_jax.training import RunError, RunSpec, best_record, export_actors, is_exported, load_spec, read_metrics, train
 
 class SuiteRun(NamedTuple):
     """One run of the suite: what it trains, with what task settings."""
@@ -113,10 +116,12 @@ def train_one(cfg: SuiteConfig, name: str, log=print) -> bool:
     run_dir = cfg.out / "runs" / name
     spec = run_spec(name, cfg)
     budget = None if cfg.time_budget_min is None else 60.0 * cfg.time_budget_min
+    if is_exported(run_dir):
+        return _exported_run_is_finished(run_dir, spec, log)
     if checkpoints.latest_step(checkpoints.latest_dir(run_dir)) is None:
-        if checkpoints.read_best_record(run_dir, 0) is not None or is_exported(run_dir):
-            raise ValueError(f"{run_dir} holds best policies but no training state to resume (a copied or "
-                             f"exported run): evaluate it with --skip-training, or train into another --out")
+        if checkpoints.read_best_record(run_dir, 0) is not None:
+            raise ValueError(f"{run_dir} holds best policies but no training state to resume (a copied run): "
+                             f"evaluate it with --skip-training, or train into another --out")
         log(f"[train] {name}: starting ({spec.ppo.total_steps:,} steps x {spec.num_seeds} seeds)")
         summary = train(spec, run_dir, progress=not cfg.smoke, time_budget_s=budget)
     else:
@@ -129,13 +134,28 @@ def train_one(cfg: SuiteConfig, name: str, log=print) -> bool:
     return summary["finished"]
 
 
+def _exported_run_is_finished(run_dir: pathlib.Path, spec: RunSpec, log=print) -> bool:
+    """An exported run (best actors, config, metrics; e.g. a committed results folder copied into --out)
+    counts as trained when it has this command's configuration and its metrics reach the step budget:
+    it cannot resume, so one exported before its budget is an error naming it."""
+    if load_spec(run_dir) != spec:
+        raise ValueError(f"{run_dir} holds an exported run with another configuration than this command's "
+                         f"(seeds, steps, preset, ratio): repeat its options or use another --out")
+    steps = max((r["env_steps"] for r in read_metrics(run_dir)), default=0)
+    if steps < spec.ppo.total_steps:
+        raise ValueError(f"{run_dir} is an exported run stopped at {steps:,} of {spec.ppo.total_steps:,} env steps "
+                         f"per seed: it holds no training state to resume; train it into another --out")
+    log(f"[train] {run_dir.name}: exported run, trained ({steps:,} env steps per seed)")
+    return True
+
+
 def _rates(rates) -> str:
     """Per-seed success rates as '[82%, 0%, none]' (none: no episode ended)."""
     return "[" + ", ".join("none" if r is None else f"{100 * r:.0f}%" for r in rates) + "]"
 
 
 def _best_iterations(run_dir: pathlib.Path, seeds: int) -> list:
-    return [(checkpoints.read_best_record(run_dir, i) or {}).get("iteration") for i in range(seeds)]
+    return [(best_record(run_dir, i) or {}).get("iteration") for i in range(seeds)]
 
 
 def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
@@ -143,7 +163,7 @@ def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
     from OUT/eval/<name>.json when it evaluated the run's current best checkpoints, else computed and
     written. None if the run has no checkpoint yet."""
     path, run_dir = cfg.out / "eval" / f"{name}.json", cfg.out / "runs" / name
-    if checkpoints.read_best_record(run_dir, 0) is None:
+    if best_record(run_dir, 0) is None:
         log(f"[eval] {name}: no checkpoint yet, skipped")
         return None
     best = _best_iterations(run_dir, cfg.seeds)
@@ -236,7 +256,7 @@ def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
                 logged[key][r["seed_index"], j] = np.nan if r.get(key) is None else r[key]
             steps[j] = r["env_steps"]
         spec = run_spec(name, cfg)
-        best = [checkpoints.read_best_record(cfg.out / "runs" / name, i) or {} for i in range(len(seeds))]
+        best = [best_record(cfg.out / "runs" / name, i) or {} for i in range(len(seeds))]
         curves[name] = {"env_steps": steps, **logged, "budget": spec.ppo.total_steps,
                         "window": math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps),
                         "best_env_steps": [b.get("env_steps") for b in best]}
@@ -581,6 +601,9 @@ def main(argv=None) -> int:
     command = "python -m match_jax.experiments " + " ".join(sys.argv[1:] if argv is None else argv)
     try:
         results = run_suite(cfg, command)
+    except (RunError, CheckpointError, ValueError) as err:  # a run directory that does not fit the command
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM (training turns it into KeyboardInterrupt after its chunk)
         print(f"interrupted: finished runs, evaluations and checkpoints in {cfg.out} are kept; run the same "
               "command to continue")

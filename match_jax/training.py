@@ -459,6 +459,16 @@ def is_exported(run_dir: str | pathlib.Path) -> bool:
     return (run_dir / ACTORS_DIR).is_dir() and not (run_dir / "checkpoints").exists()
 
 
+def best_record(run_dir: str | pathlib.Path, seed_index: int) -> dict | None:
+    """The record of one seed's best checkpoint ({'iteration', 'env_steps', 'success_rate', ...}), from
+    the run's checkpoints or, in an exported run, from `actors/seed<i>.json`; None if there is none yet."""
+    run_dir = pathlib.Path(run_dir)
+    if is_exported(run_dir):
+        path = run_dir / ACTORS_DIR / f"seed{seed_index}.json"
+        return json.loads(path.read_text()) if path.exists() else None
+    return checkpoints.read_best_record(run_dir, seed_index)
+
+
 def _actor_path(run_dir: pathlib.Path, seed_index: int) -> pathlib.Path:
     return run_dir / ACTORS_DIR / f"seed{seed_index}.msgpack"
 
@@ -478,7 +488,7 @@ def export_actors(run_dir: str | pathlib.Path, out_dir: str | pathlib.Path) -> p
     for i, policy in enumerate(policies):
         tree = jax.device_get({"actor": policy["params"]["actor"], "policy_stats": policy["policy_stats"]})
         _actor_path(out, i).write_bytes(flax.serialization.msgpack_serialize(flax.serialization.to_state_dict(tree)))
-        (out / ACTORS_DIR / f"seed{i}.json").write_text(json.dumps(checkpoints.read_best_record(run.dir, i), indent=2))
+        (out / ACTORS_DIR / f"seed{i}.json").write_text(json.dumps(best_record(run.dir, i), indent=2))
     return out
 
 

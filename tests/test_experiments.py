@@ -303,6 +303,36 @@ def test_shipped_suite_policies_load():
         assert not np.array_equal(actions[0], actions[1]), name  # trained seeds, not copies
 
 
+def test_a_suite_continues_from_its_exported_results(tmp_path, monkeypatch, capsys):
+    """The committed results folder copied into --out: its exported runs count as trained and evaluated
+    (nothing trains, nothing is evaluated again, the report reads their numbers); an exported run with
+    another configuration, or exported before its step budget, is a one-line error naming it."""
+    import shutil
+
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("an exported run was trained or evaluated again")
+
+    monkeypatch.setattr(experiments, "train", must_not_run)
+    monkeypatch.setattr(experiments, "evaluate_run_grid", must_not_run)
+    out = tmp_path / "suite"
+    shutil.copytree(SHIPPED / "runs" / "pose", out / "runs" / "pose")
+    shutil.copytree(SHIPPED / "eval", out / "eval")
+    command = ["--out", str(out), "--preset", "cpu", "--seeds", "3", "--total-steps", "2500000",
+               "--episodes", "200", "--sweep-episodes", "200", "--only", "pose"]
+    assert experiments.main(command) == 0
+    assert "[train] pose: exported run, trained (2,534,400 env steps per seed)" in capsys.readouterr().out
+    committed = next(r for r in json.loads((SHIPPED / "eval" / "pose.json").read_text())
+                     if r["noise_type"] == "gaussian" and r["break_force_n"] == 10.0)
+    success = 100 * committed["aggregate"]["success_rate"]["mean"]
+    assert f"| Pose | {success:.1f} +- " in (out / "REPORT.md").read_text().split("## Noise robustness")[0]
+    assert experiments.main([("3000000" if x == "2500000" else x) for x in command]) == 2  # another step budget
+    assert f"error: {out / 'runs' / 'pose'} holds an exported run with another configuration" in capsys.readouterr().err
+    metrics = out / "runs" / "pose" / "metrics.jsonl"
+    metrics.write_text("".join(metrics.read_text().splitlines(keepends=True)[:30]))  # exported after 10 iterations
+    assert experiments.main(command) == 2
+    assert "is an exported run stopped at 192,000 of 2,500,000 env steps per seed" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_shipped_match_policies_reproduce_their_evaluation():
     """The committed MATCH actors, evaluated afresh (other episodes, 60 per seed) at the training noise,
