@@ -89,6 +89,7 @@ class SuiteConfig:
     time_budget_min: float | None = None  # per run and call: stop training after this much wall clock
     skip_training: bool = False  # evaluate and report the checkpoints that exist, train nothing
     train_only: bool = False  # train (or resume) the runs, evaluate and report nothing
+    report_only: bool = False  # report (and export) the current evaluations that exist, train and evaluate nothing
     export: pathlib.Path | None = None  # copy the report, evaluations and best actors here (`export_suite`)
 
 
@@ -158,6 +159,16 @@ def _best_iterations(run_dir: pathlib.Path, seeds: int) -> list:
     return [(best_record(run_dir, i) or {}).get("iteration") for i in range(seeds)]
 
 
+def current_evaluation(cfg: SuiteConfig, name: str) -> list[dict] | None:
+    """OUT/eval/<name>.json if it evaluated the run's current best checkpoints, else None."""
+    path = cfg.out / "eval" / f"{name}.json"
+    if not path.exists():
+        return None
+    grid = json.loads(path.read_text())
+    best = _best_iterations(cfg.out / "runs" / name, cfg.seeds)
+    return grid if grid and all(r.get("best_iterations") == best for r in grid) else None
+
+
 def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
     """The evaluation grid of run `name` (training noise and the uniform sweep, breakable and not): read
     from OUT/eval/<name>.json when it evaluated the run's current best checkpoints, else computed and
@@ -166,12 +177,12 @@ def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
     if best_record(run_dir, 0) is None:
         log(f"[eval] {name}: no checkpoint yet, skipped")
         return None
-    best = _best_iterations(run_dir, cfg.seeds)
+    grid = current_evaluation(cfg, name)
+    if grid is not None:
+        return grid
     if path.exists():
-        grid = json.loads(path.read_text())
-        if grid and all(r.get("best_iterations") == best for r in grid):
-            return grid
         log(f"[eval] {name}: the best checkpoints changed since {path.name}; evaluating again")
+    best = _best_iterations(run_dir, cfg.seeds)
     spec = run_spec(name, cfg)
     start = time.time()
     # Table 1 at the training noise (gaussian) and the uniform sweep share one compiled rollout, so
@@ -190,8 +201,14 @@ def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
 def run_suite(cfg: SuiteConfig, command: str, log=print) -> dict[str, list[dict]]:
     """Per run: train (or resume), then evaluate once it is finished and rewrite the report, so an
     interrupted suite leaves a report of what is done and continues with the same command.
-    --skip-training evaluates whatever checkpoints exist; --train-only evaluates nothing."""
+    --skip-training evaluates whatever checkpoints exist; --train-only evaluates nothing; --report-only
+    reports the current evaluations that exist and runs nothing."""
     results = {}
+    if cfg.report_only:
+        grids = {name: current_evaluation(cfg, name) for name in cfg.only}
+        results = {name: grid for name, grid in grids.items() if grid is not None}
+        log(f"[report] current evaluations: {', '.join(results) or 'none'}")
+        return results
     for name in cfg.only:
         run_dir = cfg.out / "runs" / name
         if cfg.skip_training and (run_dir / "config.json").exists() and load_spec(run_dir) != run_spec(name, cfg):
@@ -562,6 +579,9 @@ def parse_args(argv=None) -> SuiteConfig:
     parser.add_argument("--train-only", action="store_true",
                         help="train (or resume) the runs; no evaluation and no report (e.g. training on a GPU, "
                              "evaluating later with --skip-training)")
+    parser.add_argument("--report-only", action="store_true",
+                        help="train and evaluate nothing: write the report (and --export) from the evaluations that "
+                             "exist, e.g. while the suite runs in another process")
     parser.add_argument("--export", type=pathlib.Path, default=None,
                         help="after the report, copy it, its figures and evaluations and every run's config, metrics "
                              "and best actors (no critic or optimizer state) to this folder")
@@ -580,13 +600,14 @@ def parse_args(argv=None) -> SuiteConfig:
             parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
     if args.time_budget_min is not None and not (args.time_budget_min > 0 and math.isfinite(args.time_budget_min)):
         parser.error(f"--time-budget-min must be a positive number of minutes, got {args.time_budget_min}")
-    if args.train_only and args.skip_training:
-        parser.error("--train-only and --skip-training exclude each other")
+    modes = [f"--{m.replace('_', '-')}" for m in ("train_only", "skip_training", "report_only") if getattr(args, m)]
+    if len(modes) > 1:
+        parser.error(f"{' and '.join(modes)} exclude each other")
     if args.train_only and args.export is not None:
         parser.error("--export needs the report: it does not go with --train-only")
     common = dict(out=args.out, export=args.export, only=only, selection_in_ratio=not args.selection_not_in_ratio,
                   time_budget_min=args.time_budget_min, skip_training=args.skip_training,
-                  train_only=args.train_only)
+                  train_only=args.train_only, report_only=args.report_only)
     if args.smoke:
         return SuiteConfig(preset="tiny", seeds=2, total_steps=None, episodes=2, sweep_episodes=2, smoke=True,
                            **common)

@@ -237,6 +237,13 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     assert experiments.main(smoke + ["--only", "match"]) == 0
     assert trained[5:] == [("match", True, 2)] and evaluated == ["pose", "match"]
     assert (out / "eval" / "match.json").stat().st_mtime == mtime
+    # --report-only rewrites the report from the current evaluations and trains and evaluates nothing
+    (out / "REPORT.md").unlink()
+    assert experiments.main(smoke + ["--only", "pose,match,vices", "--report-only"]) == 0
+    assert len(trained) == 6 and evaluated == ["pose", "match"]
+    assert "| MATCH |" in (out / "REPORT.md").read_text().split("## Noise robustness")[0]
+    with pytest.raises(SystemExit):
+        experiments.parse_args(smoke + ["--report-only", "--skip-training"])
     # --skip-training reports what exists: a run never trained is skipped, not an error
     assert experiments.main(smoke + ["--only", "pose,match,vices", "--skip-training"]) == 0
     assert len(trained) == 6 and not (out / "runs" / "vices").exists()
