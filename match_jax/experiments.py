@@ -619,7 +619,9 @@ def main(argv=None) -> int:
     cfg = parse_args(argv)
     compile_cache.enable()
     cfg.out.mkdir(parents=True, exist_ok=True)
-    command = "python -m match_jax.experiments " + " ".join(sys.argv[1:] if argv is None else argv)
+    # The report names the command that trains and evaluates it: --report-only only rewrites it.
+    command = "python -m match_jax.experiments " + " ".join(
+        x for x in (sys.argv[1:] if argv is None else argv) if x != "--report-only")
     try:
         results = run_suite(cfg, command)
     except (RunError, CheckpointError, ValueError) as err:  # a run directory that does not fit the command
