@@ -12,7 +12,7 @@ evaluates every seed at the training noise (Table 1, --episodes per seed) and ov
 sweep (0, 1, 2.5, 5, 7.5 mm; --sweep-episodes per seed), each with the run's break force and unbreakable.
 Resumable: finished runs and evaluations are skipped, interrupted runs resume from their checkpoint.
 An exported suite (--export: report, eval JSONs, best actors) copied into OUT counts its runs as trained
-and evaluated, so a suite continues from its committed results on a new machine.
+(same configuration, full step budget) and evaluated, so a suite continues from its committed results.
 Writes OUT/runs/<name>/ (training), OUT/eval/<name>.json, and OUT/REPORT.md with
 learning_curves.png, noise_robustness.png and selection_profile.png.
 """
@@ -121,13 +121,13 @@ def train_one(cfg: SuiteConfig, name: str, log=print) -> bool:
         return _exported_run_is_finished(run_dir, spec, log)
     if checkpoints.latest_step(checkpoints.latest_dir(run_dir)) is None:
         if checkpoints.read_best_record(run_dir, 0) is not None:
-            raise ValueError(f"{run_dir} holds best policies but no training state to resume (a copied run): "
-                             f"evaluate it with --skip-training, or train into another --out")
+            raise RunError(f"{run_dir} holds best policies but no training state to resume (a copied run): "
+                           f"evaluate it with --skip-training, or train into another --out")
         log(f"[train] {name}: starting ({spec.ppo.total_steps:,} steps x {spec.num_seeds} seeds)")
         summary = train(spec, run_dir, progress=not cfg.smoke, time_budget_s=budget)
     else:
         if load_spec(run_dir) != spec:
-            raise ValueError(f"{run_dir} holds a run with another configuration; use another --out")
+            raise RunError(f"{run_dir} holds a run with another configuration; use another --out")
         summary = train(None, run_dir, resume=True, progress=not cfg.smoke, time_budget_s=budget)
     log(f"[train] {name}: {summary['iterations']} iterations ({summary['env_steps_per_seed']:,} env steps per "
         f"seed{'' if summary['finished'] else ', stopped early: resumable'}), {summary['wall_clock_s']:.0f} s, "
@@ -140,12 +140,17 @@ def _exported_run_is_finished(run_dir: pathlib.Path, spec: RunSpec, log=print) -
     counts as trained when it has this command's configuration and its metrics reach the step budget:
     it cannot resume, so one exported before its budget is an error naming it."""
     if load_spec(run_dir) != spec:
-        raise ValueError(f"{run_dir} holds an exported run with another configuration than this command's "
-                         f"(seeds, steps, preset, ratio): repeat its options or use another --out")
+        raise RunError(f"{run_dir} holds an exported run with another configuration than this command's "
+                       f"(seeds, steps, preset, ratio): repeat its options or use another --out")
     steps = max((r["env_steps"] for r in read_metrics(run_dir)), default=0)
     if steps < spec.ppo.total_steps:
-        raise ValueError(f"{run_dir} is an exported run stopped at {steps:,} of {spec.ppo.total_steps:,} env steps "
-                         f"per seed: it holds no training state to resume; train it into another --out")
+        raise RunError(f"{run_dir} is an exported run stopped at {steps:,} of {spec.ppo.total_steps:,} env steps "
+                       f"per seed: it holds no training state to resume; train it into another --out (or delete "
+                       f"it and eval/{run_dir.name}.json)")
+    missing = [p.name for i in range(spec.num_seeds) for p in (run_dir / "actors" / f"seed{i}.json",
+               run_dir / "actors" / f"seed{i}.msgpack") if not p.exists()]
+    if missing:
+        raise RunError(f"{run_dir} is an exported run without {', '.join(missing)} in actors/")
     log(f"[train] {run_dir.name}: exported run, trained ({steps:,} env steps per seed)")
     return True
 
@@ -193,7 +198,9 @@ def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
     for row in grid:
         row["best_iterations"] = best
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(grid, indent=1, allow_nan=True))
+    tmp = path.with_suffix(".tmp")  # a report written meanwhile (--report-only) never reads half a file
+    tmp.write_text(json.dumps(grid, indent=1, allow_nan=True))
+    tmp.replace(path)
     log(f"[eval] {name}: {len(grid)} settings in {time.time() - start:.0f} s")
     return grid
 
@@ -203,6 +210,17 @@ def run_suite(cfg: SuiteConfig, command: str, log=print) -> dict[str, list[dict]
     interrupted suite leaves a report of what is done and continues with the same command.
     --skip-training evaluates whatever checkpoints exist; --train-only evaluates nothing; --report-only
     reports the current evaluations that exist and runs nothing."""
+    for name in cfg.only:
+        run_dir = cfg.out / "runs" / name
+        if (run_dir / "actors").is_dir() and (run_dir / "checkpoints").exists():
+            raise RunError(f"{run_dir} holds both exported actors and checkpoints (an export copied over a "
+                           f"run?): keep one of the two")
+        if (cfg.skip_training or cfg.report_only) and (run_dir / "config.json").exists() \
+                and load_spec(run_dir) != run_spec(name, cfg):
+            raise RunError(f"{run_dir} was trained with other settings than this command's (seeds, steps, "
+                           f"preset, ratio): repeat the training command's options")
+        if is_exported(run_dir) and not (cfg.skip_training or cfg.report_only):
+            _exported_run_is_finished(run_dir, run_spec(name, cfg), log=lambda _: None)  # fail before hours of training
     results = {}
     if cfg.report_only:
         grids = {name: current_evaluation(cfg, name) for name in cfg.only}
@@ -210,10 +228,6 @@ def run_suite(cfg: SuiteConfig, command: str, log=print) -> dict[str, list[dict]
         log(f"[report] current evaluations: {', '.join(results) or 'none'}")
         return results
     for name in cfg.only:
-        run_dir = cfg.out / "runs" / name
-        if cfg.skip_training and (run_dir / "config.json").exists() and load_spec(run_dir) != run_spec(name, cfg):
-            raise ValueError(f"{run_dir} was trained with other settings than this command's (seeds, steps, "
-                             f"preset, ratio): repeat the training command's options")
         finished = cfg.skip_training or train_one(cfg, name, log)
         if cfg.train_only or not finished:
             continue
@@ -545,26 +559,26 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     return path
 
 
-def export_suite(cfg: SuiteConfig, dest: pathlib.Path, log=print) -> pathlib.Path:
-    """Copy what the suite shows to `dest` (e.g. a results folder under version control): REPORT.md, the
-    figures, eval/*.json, and per evaluated run its config, metrics and best actors (`training.export_actors`:
-    no critic, no optimizer state), so `python eval.py DEST/runs/<name>` evaluates the shipped policies."""
+def export_suite(cfg: SuiteConfig, dest: pathlib.Path, results: dict[str, list[dict]], log=print) -> pathlib.Path:
+    """Copy what the report shows to `dest` (e.g. a results folder under version control): REPORT.md, the
+    figures and, per run in `results` (the evaluated runs), its eval JSON, config, metrics and best actors
+    (`training.export_actors`: no critic, no optimizer state), so `python eval.py DEST/runs/<name>`
+    evaluates the shipped policies. Other runs already in `dest` are left as they are."""
     dest.mkdir(parents=True, exist_ok=True)
     for path in [cfg.out / "REPORT.md", *sorted(cfg.out.glob("*.png"))]:
         if path.exists():
             (dest / path.name).write_bytes(path.read_bytes())
-    for path in sorted((cfg.out / "eval").glob("*.json")):
-        (dest / "eval").mkdir(exist_ok=True)
-        (dest / "eval" / path.name).write_bytes(path.read_bytes())
-    for name in cfg.only:  # the evaluated runs: a run still training has no final best actors yet
-        if (cfg.out / "eval" / f"{name}.json").exists():
-            export_actors(cfg.out / "runs" / name, dest / "runs" / name)
+    (dest / "eval").mkdir(exist_ok=True)
+    for name in results:  # a run still training, or with a stale evaluation, has no final best actors yet
+        (dest / "eval" / f"{name}.json").write_bytes((cfg.out / "eval" / f"{name}.json").read_bytes())
+        export_actors(cfg.out / "runs" / name, dest / "runs" / name)
     log(f"[export] {dest}")
     return dest
 
 
 def parse_args(argv=None) -> SuiteConfig:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     allow_abbrev=False)
     parser.add_argument("--out", type=pathlib.Path, required=True)
     parser.add_argument("--preset", choices=["cpu", "paper", "tiny"], default="cpu")
     parser.add_argument("--seeds", type=int, default=3)
@@ -581,10 +595,10 @@ def parse_args(argv=None) -> SuiteConfig:
                              "evaluating later with --skip-training)")
     parser.add_argument("--report-only", action="store_true",
                         help="train and evaluate nothing: write the report (and --export) from the evaluations that "
-                             "exist, e.g. while the suite runs in another process")
+                             "exist and are current, e.g. while the suite trains other runs in another process")
     parser.add_argument("--export", type=pathlib.Path, default=None,
-                        help="after the report, copy it, its figures and evaluations and every run's config, metrics "
-                             "and best actors (no critic or optimizer state) to this folder")
+                        help="after the report, copy it, its figures and, per evaluated run, its evaluation, config, "
+                             "metrics and best actors (no critic or optimizer state) to this folder")
     parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
                         help="MATCH (with SSL) leaves the selection term out of the PPO ratio (the authors' code); "
@@ -624,7 +638,12 @@ def main(argv=None) -> int:
         x for x in (sys.argv[1:] if argv is None else argv) if x != "--report-only")
     try:
         results = run_suite(cfg, command)
-    except (RunError, CheckpointError, ValueError) as err:  # a run directory that does not fit the command
+        if not cfg.train_only:
+            path = write_report(cfg, results, command)
+            print(f"wrote {path}")
+            if cfg.export is not None:
+                export_suite(cfg, cfg.export, results)
+    except (RunError, CheckpointError) as err:  # a run directory that does not fit the command
         print(f"error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # Ctrl-C or SIGTERM (training turns it into KeyboardInterrupt after its chunk)
@@ -633,11 +652,6 @@ def main(argv=None) -> int:
         return 130
     if cfg.train_only:
         print("--train-only: no evaluation, no report")
-        return 0
-    path = write_report(cfg, results, command)
-    print(f"wrote {path}")
-    if cfg.export is not None:
-        export_suite(cfg, cfg.export)
     return 0
 
 

@@ -249,6 +249,16 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     assert experiments.main(smoke + ["--only", "pose,match,vices", "--skip-training"]) == 0
     assert len(trained) == 6 and not (out / "runs" / "vices").exists()
     assert "| VICES |" not in (out / "REPORT.md").read_text()
+    # a stale evaluation (a new best checkpoint since) is left out of --report-only's report and export
+    checkpoints.write_best_record(out / "runs" / "match", 1, {"iteration": 1, "success_rate": 0.9, "env_steps": 32})
+    again = tmp_path / "again"
+    assert experiments.main(smoke + ["--only", "pose,match", "--report-only", "--export", str(again)]) == 0
+    table1 = (out / "REPORT.md").read_text().split("## Noise robustness")[0]
+    assert "| Pose |" in table1 and "| MATCH |" not in table1 and evaluated == ["pose", "match"]
+    assert sorted(p.name for p in (again / "eval").iterdir()) == ["pose.json"] and exported[-1] == "pose"
+    # --report-only checks the runs' settings against the command's: a one-line error, exit 2
+    assert experiments.main(smoke + ["--only", "match", "--report-only", "--selection-not-in-ratio"]) == 2
+    assert f"error: {out / 'runs' / 'match'} was trained with other settings" in capsys.readouterr().err
 
 
 def test_early_training_reads_breaks_contact_and_free_space_force_selection():
@@ -327,14 +337,24 @@ def test_a_suite_continues_from_its_exported_results(tmp_path, monkeypatch, caps
     shutil.copytree(SHIPPED / "eval", out / "eval")
     command = ["--out", str(out), "--preset", "cpu", "--seeds", "3", "--total-steps", "2500000",
                "--episodes", "200", "--sweep-episodes", "200", "--only", "pose"]
-    assert experiments.main(command) == 0
+    shipped = tmp_path / "shipped"
+    assert experiments.main(command + ["--export", str(shipped)]) == 0
     assert "[train] pose: exported run, trained (2,534,400 env steps per seed)" in capsys.readouterr().out
+    for path in [*(SHIPPED / "runs" / "pose" / "actors").iterdir(), SHIPPED / "eval" / "pose.json"]:
+        again = shipped / path.relative_to(SHIPPED)  # exported again: the same actors, records and evaluation
+        assert again.read_bytes() == path.read_bytes(), path.name
+    assert sorted(p.name for p in (shipped / "eval").iterdir()) == ["pose.json"]  # only the runs reported
     committed = next(r for r in json.loads((SHIPPED / "eval" / "pose.json").read_text())
                      if r["noise_type"] == "gaussian" and r["break_force_n"] == 10.0)
     success = 100 * committed["aggregate"]["success_rate"]["mean"]
     assert f"| Pose | {success:.1f} +- " in (out / "REPORT.md").read_text().split("## Noise robustness")[0]
     assert experiments.main([("3000000" if x == "2500000" else x) for x in command]) == 2  # another step budget
     assert f"error: {out / 'runs' / 'pose'} holds an exported run with another configuration" in capsys.readouterr().err
+    actor = out / "runs" / "pose" / "actors" / "seed2.msgpack"
+    actor.rename(actor.with_suffix(".bak"))
+    assert experiments.main(command) == 2
+    assert "is an exported run without seed2.msgpack in actors/" in capsys.readouterr().err
+    actor.with_suffix(".bak").rename(actor)
     metrics = out / "runs" / "pose" / "metrics.jsonl"
     metrics.write_text("".join(metrics.read_text().splitlines(keepends=True)[:30]))  # exported after 10 iterations
     assert experiments.main(command) == 2
