@@ -299,9 +299,18 @@ def _write_csv(jsonl: pathlib.Path, csv_path: pathlib.Path) -> None:
 
 
 def read_metrics(run_dir: str | pathlib.Path) -> list[dict]:
-    """The rows of a run's metrics.jsonl."""
+    """The rows of a run's metrics.jsonl; a last line still being written is left out."""
     path = pathlib.Path(run_dir) / "metrics.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+    lines = [line for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+    rows = []
+    for number, line in enumerate(lines, 1):
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:
+            if number == len(lines):
+                break
+            raise RunError(f"{path} line {number} is not a JSON row: {line[:80]!r}") from None
+    return rows
 
 
 def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = False, progress: bool = True,

@@ -294,6 +294,17 @@ def test_import_gives_one_cpu_device_per_core_unless_set(setting, expected):
     assert devices == (cores if expected == "cores" else expected)
 
 
+def test_read_metrics_leaves_out_a_line_being_written_and_names_a_damaged_one(tmp_path):
+    rows = [{"iteration": 1, "seed_index": 0}, {"iteration": 2, "seed_index": 0}]
+    complete = "".join(json.dumps(r) + "\n" for r in rows)
+    (tmp_path / "metrics.jsonl").write_text(complete + '{"iteration": 3, "seed_')  # an append in progress
+    assert read_metrics(tmp_path) == rows
+    (tmp_path / "metrics.jsonl").write_text('{"iteration": 1\n' + complete)
+    with pytest.raises(RunError, match=r"metrics.jsonl line 1 is not a JSON row"):
+        read_metrics(tmp_path)
+    assert read_metrics(tmp_path / "missing") == []
+
+
 def test_checkpoint_writer_runs_one_write_at_a_time_and_reraises():
     events = []
     release = threading.Event()
