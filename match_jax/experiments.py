@@ -37,7 +37,8 @@ from match_jax.envs import FPiHConfig
 from match_jax.presets import get_preset
 from match_jax.evaluation import evaluate_run_grid
 from match_jax.checkpoints import CheckpointError
-from match_jax.training import RunError, RunSpec, best_record, export_actors, is_exported, load_spec, read_metrics, train
+from match_jax.training import (ACTORS_DIR, RunError, RunSpec, actor_path, record_path, best_record, export_actors, is_exported,
+                                load_spec, read_metrics, train)
 
 class SuiteRun(NamedTuple):
     """One run of the suite: what it trains, with what task settings."""
@@ -147,8 +148,8 @@ def _exported_run_is_finished(run_dir: pathlib.Path, spec: RunSpec, log=print) -
         raise RunError(f"{run_dir} is an exported run stopped at {steps:,} of {spec.ppo.total_steps:,} env steps "
                        f"per seed: it holds no training state to resume; train it into another --out (or delete "
                        f"it and eval/{run_dir.name}.json)")
-    missing = [p.name for i in range(spec.num_seeds) for p in (run_dir / "actors" / f"seed{i}.json",
-               run_dir / "actors" / f"seed{i}.msgpack") if not p.exists()]
+    missing = [p.name for i in range(spec.num_seeds) for p in (record_path(run_dir, i), actor_path(run_dir, i))
+               if not p.exists()]
     if missing:
         raise RunError(f"{run_dir} is an exported run without {', '.join(missing)} in actors/")
     log(f"[train] {run_dir.name}: exported run, trained ({steps:,} env steps per seed)")
@@ -212,7 +213,7 @@ def run_suite(cfg: SuiteConfig, command: str, log=print) -> dict[str, list[dict]
     reports the current evaluations that exist and runs nothing."""
     for name in cfg.only:
         run_dir = cfg.out / "runs" / name
-        if (run_dir / "actors").is_dir() and (run_dir / "checkpoints").exists():
+        if (run_dir / ACTORS_DIR).is_dir() and checkpoints.latest_dir(run_dir).parent.exists():
             raise RunError(f"{run_dir} holds both exported actors and checkpoints (an export copied over a "
                            f"run?): keep one of the two")
         if (cfg.skip_training or cfg.report_only) and (run_dir / "config.json").exists() \

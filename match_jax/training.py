@@ -473,13 +473,19 @@ def best_record(run_dir: str | pathlib.Path, seed_index: int) -> dict | None:
     the run's checkpoints or, in an exported run, from `actors/seed<i>.json`; None if there is none yet."""
     run_dir = pathlib.Path(run_dir)
     if is_exported(run_dir):
-        path = run_dir / ACTORS_DIR / f"seed{seed_index}.json"
+        path = record_path(run_dir, seed_index)
         return json.loads(path.read_text()) if path.exists() else None
     return checkpoints.read_best_record(run_dir, seed_index)
 
 
-def _actor_path(run_dir: pathlib.Path, seed_index: int) -> pathlib.Path:
+def actor_path(run_dir: pathlib.Path, seed_index: int) -> pathlib.Path:
+    """Seed `seed_index`'s actor parameters and normaliser in an exported run (flax msgpack)."""
     return run_dir / ACTORS_DIR / f"seed{seed_index}.msgpack"
+
+
+def record_path(run_dir: pathlib.Path, seed_index: int) -> pathlib.Path:
+    """Seed `seed_index`'s best-checkpoint record in an exported run (JSON)."""
+    return run_dir / ACTORS_DIR / f"seed{seed_index}.json"
 
 
 def export_actors(run_dir: str | pathlib.Path, out_dir: str | pathlib.Path) -> pathlib.Path:
@@ -496,14 +502,14 @@ def export_actors(run_dir: str | pathlib.Path, out_dir: str | pathlib.Path) -> p
             (out / name).write_bytes((run.dir / name).read_bytes())
     for i, policy in enumerate(policies):
         tree = jax.device_get({"actor": policy["params"]["actor"], "policy_stats": policy["policy_stats"]})
-        _actor_path(out, i).write_bytes(flax.serialization.msgpack_serialize(flax.serialization.to_state_dict(tree)))
-        (out / ACTORS_DIR / f"seed{i}.json").write_text(json.dumps(best_record(run.dir, i), indent=2))
+        actor_path(out, i).write_bytes(flax.serialization.msgpack_serialize(flax.serialization.to_state_dict(tree)))
+        record_path(out, i).write_text(json.dumps(best_record(run.dir, i), indent=2))
     return out
 
 
 def _load_actor(run: Run, seed_index: int) -> dict:
     """{'params': {'actor'}, 'policy_stats'} of one seed of an exported run."""
-    path = _actor_path(run.dir, seed_index)
+    path = actor_path(run.dir, seed_index)
     if not path.exists():
         raise RunError(f"{path} is missing: the exported run has no actor for seed index {seed_index}")
     full = run.policy_target()
