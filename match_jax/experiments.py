@@ -411,21 +411,30 @@ def _status_lines(cfg: SuiteConfig, results: dict[str, list[dict]], curves: dict
     pending = [n for n in cfg.only if n not in results]
     if not pending:
         return []
+    def finished(n):
+        return curves[n]["env_steps"][-1] >= curves[n]["budget"]
+
     training = [f"{SUITE[n].label} ({int(curves[n]['env_steps'][-1]):,} of {curves[n]['budget']:,} env steps per seed)"
-                for n in pending if n in curves]
+                for n in pending if n in curves and not finished(n)]
+    unevaluated = [SUITE[n].label for n in pending if n in curves and finished(n)]
     waiting = [SUITE[n].label for n in pending if n not in curves]
     return ["## Runs in this report", "",
             f"{len(results)} of {len(cfg.only)} runs are trained and evaluated"
             + (f": {', '.join(SUITE[n].label for n in results)}." if results else ".")
-            + (f" Training, not yet evaluated: {'; '.join(training)}." if training else "")
+            + (f" Trained, not yet evaluated: {', '.join(unevaluated)}." if unevaluated else "")
+            + (f" Training: {'; '.join(training)}." if training else "")
             + (f" Not started: {', '.join(waiting)}." if waiting else "")
-            + " Runs still training appear in the learning-speed and early-training tables only, marked (training), and no claim uses "
-              "them. Running the suite's command again continues it.", ""]
+            + " Runs not yet evaluated appear in the learning-speed and early-training tables only, marked (training) "
+              "or (not evaluated), and no claim uses them. Running the suite's command again continues it.", ""]
 
 
-def _label(name: str, results: dict[str, list[dict]]) -> str:
-    """A run's label in the learning table and curve, marked while it is not evaluated yet."""
-    return SUITE[name].label + ("" if name in results else " (training)")
+def _label(name: str, results: dict[str, list[dict]], curves: dict[str, dict]) -> str:
+    """A run's label in the learning table and curve, marked while it is not evaluated yet: (training) below
+    its step budget, (not evaluated) at it."""
+    if name in results:
+        return SUITE[name].label
+    c = curves[name]
+    return SUITE[name].label + (" (not evaluated)" if c["env_steps"][-1] >= c["budget"] else " (training)")
 
 
 def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]]) -> list[str]:
@@ -454,7 +463,7 @@ def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]]) -> 
         best = float(np.nanmax(rate)) if np.isfinite(rate).any() else float("nan")
         kept = " / ".join("-" if x is None else f"{x / 1e6:.2f}M" if x >= 1e5 else f"{x:,}"
                           for x in c.get("best_env_steps", []))
-        lines.append(f"| {_label(name, results)} | {int(c['env_steps'][-1]):,} | " + " | ".join(cells)
+        lines.append(f"| {_label(name, results, curves)} | {int(c['env_steps'][-1]):,} | " + " | ".join(cells)
                      + f" | {100 * tail:.1f} | {100 * best:.1f} | {kept} |")
     return lines
 
@@ -503,7 +512,7 @@ def _early_lines(curves: dict[str, dict], results: dict[str, list[dict]]) -> lis
              "|---|---|---|---|---|"]
     for name, c in curves.items():
         e = early_training(c)
-        lines.append(f"| {_label(name, results)} | {pct(e['break_rate'])} | "
+        lines.append(f"| {_label(name, results, curves)} | {pct(e['break_rate'])} | "
                      + " / ".join(pct(x) for x in e["contact_fraction"]) + f" | {pct(e['p_force_free_start'])} | "
                      + ("-" if math.isnan(e["p_force_free_start"]) else " / ".join(pct(x) for x in e["p_force_free"]))
                      + " |")
@@ -527,7 +536,7 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     """OUT/REPORT.md and its three figures from the evaluated runs `results` and every run's training metrics."""
     out = cfg.out
     curves = learning_curves(cfg)
-    plots.learning_curves({_label(n, results): c for n, c in curves.items()}, out / "learning_curves.png",
+    plots.learning_curves({_label(n, results, curves): c for n, c in curves.items()}, out / "learning_curves.png",
                           smooth=1 if cfg.smoke else 5)
     plots.noise_robustness({SUITE[n].label: [r for r in g if r["noise_type"] == "uniform"] for n, g in results.items()},
                            out / "noise_robustness.png")

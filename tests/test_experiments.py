@@ -212,8 +212,7 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     report = (out / "REPORT.md").read_text()
     table1 = report.split("## Noise robustness")[0]
     assert "| Pose |" in table1 and "| MATCH |" not in table1
-    assert ("1 of 2 runs are trained and evaluated: Pose. Training, not yet evaluated: MATCH (32 of 64 env steps "
-            "per seed).") in report
+    assert "1 of 2 runs are trained and evaluated: Pose. Training: MATCH (32 of 64 env steps per seed)." in report
     assert "| MATCH (training) | 32 |" in report  # its learning curve so far, marked
     assert "| 75.0 | 100.0 | 64 / 64 |" in report  # Pose: final, best success and where each seed's best is
     assert "| MATCH learns as fast as Pose (env steps to 80 % training success) | not run |" in report
@@ -253,8 +252,11 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     checkpoints.write_best_record(out / "runs" / "match", 1, {"iteration": 1, "success_rate": 0.9, "env_steps": 32})
     again = tmp_path / "again"
     assert experiments.main(smoke + ["--only", "pose,match", "--report-only", "--export", str(again)]) == 0
-    table1 = (out / "REPORT.md").read_text().split("## Noise robustness")[0]
+    report = (out / "REPORT.md").read_text()
+    table1 = report.split("## Noise robustness")[0]
     assert "| Pose |" in table1 and "| MATCH |" not in table1 and evaluated == ["pose", "match"]
+    assert "Pose. Trained, not yet evaluated: MATCH. Runs not yet evaluated" in report  # finished, not training
+    assert "| MATCH (not evaluated) | 64 |" in report
     assert sorted(p.name for p in (again / "eval").iterdir()) == ["pose.json"] and exported[-1] == "pose"
     # --report-only checks the runs' settings against the command's: a one-line error, exit 2
     assert experiments.main(smoke + ["--only", "match", "--report-only", "--selection-not-in-ratio"]) == 2
