@@ -406,17 +406,19 @@ def _selection_lines(results: dict[str, list[dict]]) -> list[str]:
     return lines
 
 
+def _at_budget(curve: dict) -> bool:
+    """Whether a run's training metrics reach its step budget."""
+    return curve["env_steps"][-1] >= curve["budget"]
+
+
 def _status_lines(cfg: SuiteConfig, results: dict[str, list[dict]], curves: dict[str, dict]) -> list[str]:
     """Which of the suite's runs this report covers (empty when every run is evaluated)."""
     pending = [n for n in cfg.only if n not in results]
     if not pending:
         return []
-    def finished(n):
-        return curves[n]["env_steps"][-1] >= curves[n]["budget"]
-
     training = [f"{SUITE[n].label} ({int(curves[n]['env_steps'][-1]):,} of {curves[n]['budget']:,} env steps per seed)"
-                for n in pending if n in curves and not finished(n)]
-    unevaluated = [SUITE[n].label for n in pending if n in curves and finished(n)]
+                for n in pending if n in curves and not _at_budget(curves[n])]
+    unevaluated = [SUITE[n].label for n in pending if n in curves and _at_budget(curves[n])]
     waiting = [SUITE[n].label for n in pending if n not in curves]
     return ["## Runs in this report", "",
             f"{len(results)} of {len(cfg.only)} runs are trained and evaluated"
@@ -433,8 +435,7 @@ def _label(name: str, results: dict[str, list[dict]], curves: dict[str, dict]) -
     its step budget, (not evaluated) at it."""
     if name in results:
         return SUITE[name].label
-    c = curves[name]
-    return SUITE[name].label + (" (not evaluated)" if c["env_steps"][-1] >= c["budget"] else " (training)")
+    return SUITE[name].label + (" (not evaluated)" if _at_budget(curves[name]) else " (training)")
 
 
 def _learning_lines(curves: dict[str, dict], results: dict[str, list[dict]]) -> list[str]:
