@@ -82,12 +82,17 @@ def restore(directory: pathlib.Path, target, step: int | None = None):
                               f"{first[:300]})") from None
 
 
+def run_checkpoints_dir(run_dir: pathlib.Path) -> pathlib.Path:
+    """The folder holding a run's training checkpoints (latest and best per seed)."""
+    return run_dir / "checkpoints"
+
+
 def best_dir(run_dir: pathlib.Path, seed_index: int) -> pathlib.Path:
-    return run_dir / "checkpoints" / f"best_seed{seed_index}"
+    return run_checkpoints_dir(run_dir) / f"best_seed{seed_index}"
 
 
 def latest_dir(run_dir: pathlib.Path) -> pathlib.Path:
-    return run_dir / "checkpoints" / "latest"
+    return run_checkpoints_dir(run_dir) / "latest"
 
 
 def read_best_record(run_dir: pathlib.Path, seed_index: int) -> dict | None:

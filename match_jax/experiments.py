@@ -37,8 +37,8 @@ from match_jax.envs import FPiHConfig
 from match_jax.presets import get_preset
 from match_jax.evaluation import evaluate_run_grid
 from match_jax.checkpoints import CheckpointError
-from match_jax.training import (ACTORS_DIR, RunError, RunSpec, actor_path, record_path, best_record, export_actors, is_exported,
-                                load_spec, read_metrics, train)
+from match_jax.training import (ACTORS_DIR, RunError, RunSpec, actor_path, best_record, export_actors, is_exported,
+                                load_spec, read_metrics, record_path, train)
 
 class SuiteRun(NamedTuple):
     """One run of the suite: what it trains, with what task settings."""
@@ -213,7 +213,7 @@ def run_suite(cfg: SuiteConfig, command: str, log=print) -> dict[str, list[dict]
     reports the current evaluations that exist and runs nothing."""
     for name in cfg.only:
         run_dir = cfg.out / "runs" / name
-        if (run_dir / ACTORS_DIR).is_dir() and checkpoints.latest_dir(run_dir).parent.exists():
+        if (run_dir / ACTORS_DIR).is_dir() and checkpoints.run_checkpoints_dir(run_dir).exists():
             raise RunError(f"{run_dir} holds both exported actors and checkpoints (an export copied over a "
                            f"run?): keep one of the two")
         if (cfg.skip_training or cfg.report_only) and (run_dir / "config.json").exists() \

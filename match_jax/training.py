@@ -465,7 +465,7 @@ ACTORS_DIR = "actors"
 def is_exported(run_dir: str | pathlib.Path) -> bool:
     """Whether `run_dir` is an exported run (`export_actors`): config, metrics and best actors, no checkpoints."""
     run_dir = pathlib.Path(run_dir)
-    return (run_dir / ACTORS_DIR).is_dir() and not (run_dir / "checkpoints").exists()
+    return (run_dir / ACTORS_DIR).is_dir() and not checkpoints.run_checkpoints_dir(run_dir).exists()
 
 
 def best_record(run_dir: str | pathlib.Path, seed_index: int) -> dict | None:
