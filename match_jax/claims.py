@@ -140,10 +140,11 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
         a, b = values(f"{run}_nossl", "success"), values(run, "success")
         claims.append(Claim(f"{label} without the SSL succeeds less often", verdict_lower(a, b),
                             f"{_pct(a)} vs {_pct(b)}"))
-    for hybrid, label in (("match", "MATCH"), ("hybrid", "Hybrid-Basic")):
-        a, b = values("pose", "success_7.5"), values(hybrid, "success_7.5")
-        claims.append(Claim(f"{label} degrades less with noise than Pose (success at +-7.5 mm)", verdict_lower(a, b),
-                            f"{_pct(b)} vs {_pct(a)}"))
+    for pose, pose_label in (("pose", "Pose"), ("pose_noise2.5", "Pose trained at 2.5 mm")):
+        for hybrid, label in (("match", "MATCH"), ("hybrid", "Hybrid-Basic")):
+            a, b = values(pose, "success_7.5"), values(hybrid, "success_7.5")
+            claims.append(Claim(f"{label} degrades less with noise than {pose_label} (success at +-7.5 mm)",
+                                verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
     contact, free = values("match", "force_contact"), values("match", "force_free")
     in_contact = MISSING if not len(_finite(contact)) else HOLDS if _mean(contact) > 0.5 else FAILS
     claims.append(Claim("MATCH selects force on most in-contact axes (paper: 84 %)", in_contact, _pct(contact)))

@@ -71,7 +71,8 @@ def test_check_claims_reads_the_right_runs_and_metrics():
     table = {("pose", "break"): [0.2, 0.25, 0.3], ("match", "break"): [0.0, 0.0, 0.01],
              ("hybrid", "break"): [0.2, 0.3, 0.25], ("match", "force_contact"): [0.8, 0.9, 0.85],
              ("match", "force_free"): [0.3, 0.2, 0.25], ("pose", "success"): [0.9, 0.88, 0.86],
-             ("match_literal", "success"): [0.97, 0.98, 0.96]}
+             ("match_literal", "success"): [0.97, 0.98, 0.96], ("match", "success_7.5"): [0.4, 0.38, 0.42],
+             ("pose_noise2.5", "success_7.5"): [0.1, 0.15, 0.05]}
     speed = {"match": [1e6, 1.1e6, 0.9e6], "pose": [1e6, 1.05e6, 0.95e6], "hybrid": [3e6, 3e6, 2.9e6],
              "match_literal": [2e6, 2.1e6, 2.2e6]}
     found = {c.text: c for c in claims.check_claims(lambda run, metric: table.get((run, metric), []),
@@ -90,3 +91,7 @@ def test_check_claims_reads_the_right_runs_and_metrics():
     slower = found["MATCH with the authors' force law learns as fast as Pose (env steps to 80 % training success)"]
     assert slower.verdict == claims.FAILS and slower.numbers == "2.10M vs 1.00M"
     assert found["MATCH breaks less than Pose (10 N, training noise)"].numbers == "0.3 % vs 25.0 %"
+    # the noise claim against Pose trained at 2.5 mm reads that run's sweep, not Pose's
+    wide = found["MATCH degrades less with noise than Pose trained at 2.5 mm (success at +-7.5 mm)"]
+    assert wide.verdict == claims.HOLDS and wide.numbers == "40.0 % vs 10.0 %"
+    assert found["MATCH degrades less with noise than Pose (success at +-7.5 mm)"].verdict == claims.MISSING
