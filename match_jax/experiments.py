@@ -344,6 +344,12 @@ def _table1_lines(results: dict[str, list[dict]]) -> list[str]:
         "|---|---|---|---|---|---|---|---|",
     ]
     breakable = {n: g for n, g in results.items() if not unbreakable(n)}
+    noise = {name: _table1_row(grid)["noise_mm"] for name, grid in breakable.items()}
+    usual = max(set(noise.values()), key=list(noise.values()).count, default=None)
+    others = [f"{SUITE[n].label} at {x:g} mm" for n, x in noise.items() if x != usual]
+    if usual is not None:
+        lines[2:2] = [f"Each run is evaluated at its training noise: gaussian hole-position noise of std {usual:g} mm"
+                      + (f" ({', '.join(others)})" if others else "") + ".", ""]
     for name, grid in breakable.items():
         row = _table1_row(grid)
         paper = PAPER_TABLE1.get(name)

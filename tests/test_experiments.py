@@ -372,3 +372,17 @@ def test_shipped_match_policies_reproduce_their_evaluation():
     fresh = evaluation.evaluate_run_grid(SHIPPED / "runs" / "match", 60, seed=7)[0]
     for key, tolerance in (("success_rate", 0.15), ("break_rate", 0.05)):
         assert abs(fresh["aggregate"][key]["mean"] - committed["aggregate"][key]["mean"]) < tolerance, key
+
+
+def test_table1_names_each_runs_evaluation_noise():
+    """Table 1 evaluates each run at its own training noise; a run trained at another noise is named."""
+    def grid(noise_mm):
+        return [{"noise_type": "gaussian", "noise_mm": noise_mm, "break_force_n": 10.0, "per_seed": [],
+                 "aggregate": {}}]
+
+    lines = experiments._table1_lines({"pose": grid(1.0), "match": grid(1.0), "pose_noise2.5": grid(2.5)})
+    assert ("Each run is evaluated at its training noise: gaussian hole-position noise of std 1 mm "
+            "(Pose (trained at 2.5 mm) at 2.5 mm).") in lines
+    assert sum(line.startswith("| Pose") for line in lines) == 2
+    lines = experiments._table1_lines({"pose": grid(1.0)})
+    assert "Each run is evaluated at its training noise: gaussian hole-position noise of std 1 mm." in lines
