@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 import pathlib
+import re
 import warnings
 
 import matplotlib
@@ -35,9 +36,23 @@ def mean_and_ci95(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean, half
 
 
+def line_styles(names) -> dict[str, dict]:
+    """Matplotlib color and line style per curve name: distinct colors per method, and a run trained
+    unbreakable dashed in its method's color (names compared without '(unbreakable)', '(training)' and
+    '(not evaluated)')."""
+    palette = plt.get_cmap("tab10").colors + plt.get_cmap("Dark2").colors
+    styles, colors = {}, {}
+    for name in names:
+        method = re.sub(r" \((unbreakable|training|not evaluated)\)", "", name)
+        color = colors.setdefault(method, palette[len(colors) % len(palette)])
+        styles[name] = {"color": color, "linestyle": "--" if "(unbreakable)" in name else "-"}
+    return styles
+
+
 def learning_curves(curves: dict[str, dict], path: str | pathlib.Path, smooth: int = 5) -> None:
     """curves: name -> {'env_steps': (I,), 'success_rate': (seeds, I)}; moving average over `smooth`."""
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig, ax = plt.subplots(figsize=(10, 4.2))
+    styles = line_styles(curves)
     for name, c in curves.items():
         rates = np.asarray(c["success_rate"], np.float64)
         if smooth > 1 and rates.shape[1] >= smooth:
@@ -47,22 +62,23 @@ def learning_curves(curves: dict[str, dict], path: str | pathlib.Path, smooth: i
         else:
             steps = np.asarray(c["env_steps"])
         mean, half = mean_and_ci95(rates)
-        ax.plot(steps, 100 * mean, label=f"{name} ({rates.shape[0]} seeds)")
-        ax.fill_between(steps, 100 * (mean - half), 100 * (mean + half), alpha=0.2)
+        ax.plot(steps, 100 * mean, label=f"{name} ({rates.shape[0]} seeds)", **styles[name])
+        ax.fill_between(steps, 100 * (mean - half), 100 * (mean + half), alpha=0.12, color=styles[name]["color"])
     ax.set_xlabel("env steps per seed")
     ax.set_ylabel("training success rate (%)")
     ax.set_ylim(-2, 102)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     ax.set_title("Learning curves (mean, 95% CI over seeds)")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")  # the legend sits right of the axes
     plt.close(fig)
 
 
 def noise_robustness(sweeps: dict[str, list[dict]], path: str | pathlib.Path) -> None:
     """sweeps: name -> list of eval results (noise_mm, break_force_n, aggregate) from evaluate_run_grid."""
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4))
+    fig, axes = plt.subplots(1, 3, figsize=(16, 4))
+    styles = line_styles(sweeps)
     panels = [("success_rate", False, "success, breakable (%)"), ("break_rate", False, "break rate (%)"),
               ("success_rate", True, "success, unbreakable (%)")]
     for ax, (column, unbreakable, title) in zip(axes, panels):
@@ -73,14 +89,17 @@ def noise_robustness(sweeps: dict[str, list[dict]], path: str | pathlib.Path) ->
             x = [r["noise_mm"] for r in rows]
             y = np.array([100 * r["aggregate"][column]["mean"] for r in rows])
             err = np.array([100 * _nan0(r["aggregate"][column]["se"]) for r in rows])
-            ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=name)
+            ax.errorbar(x, y, yerr=err, marker="o", capsize=3, label=name, **styles[name])
         ax.set_xlabel("hole-position noise, uniform +- (mm)")
         ax.set_title(title)
         ax.set_ylim(-2, 102)
         ax.grid(alpha=0.3)
-    axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    handles = {}  # one legend for the three panels: a run trained unbreakable shows in the last only
+    for ax in axes:
+        handles.update(zip(*reversed(ax.get_legend_handles_labels())))
+    fig.legend(list(handles.values()), list(handles), fontsize=8, loc="center left", bbox_to_anchor=(0.82, 0.5))
+    fig.tight_layout(rect=(0, 0, 0.82, 1))
+    fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 

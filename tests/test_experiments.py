@@ -386,3 +386,16 @@ def test_table1_names_each_runs_evaluation_noise():
     assert sum(line.startswith("| Pose") for line in lines) == 2
     lines = experiments._table1_lines({"pose": grid(1.0)})
     assert "Each run is evaluated at its training noise: gaussian hole-position noise of std 1 mm." in lines
+
+
+def test_plot_styles_keep_methods_apart_and_dash_unbreakable_runs():
+    """Every method of the suite gets its own color; a run trained unbreakable is dashed in its method's."""
+    from match_jax import plots
+
+    names = [spec.label for spec in experiments.SUITE.values()] + ["Hybrid-Basic (unbreakable) (training)"]
+    styles = plots.line_styles(names)
+    methods = [n for n in names if "(unbreakable)" not in n]
+    assert len({styles[n]["color"] for n in methods}) == len(methods)
+    assert {styles[n]["linestyle"] for n in methods} == {"-"}
+    assert styles["Pose (unbreakable)"] == {"color": styles["Pose"]["color"], "linestyle": "--"}
+    assert styles["Hybrid-Basic (unbreakable) (training)"]["color"] == styles["Hybrid-Basic"]["color"]
