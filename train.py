@@ -22,6 +22,7 @@ import sys
 import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 
 METHODS = ("pose", "vices", "hybrid", "match")
+NETWORK_FLAGS = ("actor_hidden", "actor_blocks", "critic_hidden", "critic_blocks")
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -48,6 +49,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--iterations-per-chunk", type=int, default=None,
                         help="PPO iterations per jitted call, between logs and checkpoints (preset default)")
     parser.add_argument("--learning-rate", type=float, default=None)
+    parser.add_argument("--actor-hidden", type=int, default=None, help="actor SimBa width (preset default)")
+    parser.add_argument("--actor-blocks", type=int, default=None, help="actor SimBa residual blocks (preset default)")
+    parser.add_argument("--critic-hidden", type=int, default=None, help="critic SimBa width (preset default)")
+    parser.add_argument("--critic-blocks", type=int, default=None, help="critic SimBa residual blocks (preset default)")
     parser.add_argument("--initial-log-std", type=float, default=None,
                         help="the actor's initial pre-tanh log std (default: the preset's, docs/training.md)")
     parser.add_argument("--hole-noise-mm", type=float, default=None,
@@ -74,10 +79,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     if not args.resume and args.method is None:
         parser.error("--method is required (unless --resume)")
     for name in ("seeds", "total_steps", "num_envs", "max_chunks", "rollout_steps", "epochs", "minibatches",
-                 "iterations_per_chunk"):
+                 "iterations_per_chunk", "actor_hidden", "critic_hidden"):
         value = getattr(args, name)
         if value is not None and value < 1:
             parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
+    for name in ("actor_blocks", "critic_blocks"):
+        value = getattr(args, name)
+        if value is not None and value < 0:
+            parser.error(f"--{name.replace('_', '-')} must be an integer >= 0, got {value}")
     if args.time_budget_min is not None and not (args.time_budget_min > 0 and math.isfinite(args.time_budget_min)):
         parser.error(f"--time-budget-min must be a positive number of minutes, got {args.time_budget_min}")
     if args.hole_noise_mm is not None and not (args.hole_noise_mm >= 0 and math.isfinite(args.hole_noise_mm)):
@@ -118,8 +127,10 @@ def build_spec(args: argparse.Namespace):
     if args.ssl_contact_only:
         overrides["ssl_samples"] = "contact"
     ppo = get_preset(args.preset, **overrides)
-    if args.initial_log_std is not None:
-        ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, initial_log_std=args.initial_log_std))
+    network = {name: getattr(args, name) for name in NETWORK_FLAGS + ("initial_log_std",)
+               if getattr(args, name) is not None}
+    if network:
+        ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, **network))
     env = FPiHConfig(control=ppo.control)
     if args.hole_noise_mm is not None:
         env = dataclasses.replace(env, hole_obs_noise=args.hole_noise_mm / 1000.0)
