@@ -55,6 +55,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--critic-blocks", type=int, default=None, help="critic SimBa residual blocks (preset default)")
     parser.add_argument("--initial-log-std", type=float, default=None,
                         help="the actor's initial pre-tanh log std (default: the preset's, docs/training.md)")
+    parser.add_argument("--initial-p-position", type=float, default=None,
+                        help="hybrid methods: the untrained policy's probability of position control per axis "
+                             "(default 0.93, as in the paper)")
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10; inf = unbreakable)")
@@ -101,6 +104,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         if not low < args.initial_log_std < high:
             parser.error(f"--initial-log-std must be in ({low:g}, {high:g}) (the actor's log-std bounds), "
                          f"got {args.initial_log_std}")
+    if args.initial_p_position is not None and not 0 < args.initial_p_position < 1:
+        parser.error(f"--initial-p-position must be in (0, 1), got {args.initial_p_position}")
     if args.ssl_coef is not None and not args.ssl_coef >= 0:
         parser.error(f"--ssl-coef must be >= 0, got {args.ssl_coef}")
     return args
@@ -127,7 +132,7 @@ def build_spec(args: argparse.Namespace):
     if args.ssl_contact_only:
         overrides["ssl_samples"] = "contact"
     ppo = get_preset(args.preset, **overrides)
-    network = {name: getattr(args, name) for name in NETWORK_FLAGS + ("initial_log_std",)
+    network = {name: getattr(args, name) for name in NETWORK_FLAGS + ("initial_log_std", "initial_p_position")
                if getattr(args, name) is not None}
     if network:
         ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, **network))

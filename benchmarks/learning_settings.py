@@ -20,6 +20,7 @@ Prints a markdown table; `--json` also writes the numbers.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import math
 import pathlib
@@ -33,23 +34,31 @@ THRESHOLDS = (0.5, 0.8, 0.9)
 READ_AT = (250_000, 500_000, 1_000_000)
 
 
+def metric_rows(run_dir: pathlib.Path) -> list[dict]:
+    """A run's per-iteration metrics: metrics.jsonl, or metrics.csv where only that was kept."""
+    if (run_dir / "metrics.jsonl").exists() or not (run_dir / "metrics.csv").exists():
+        return read_metrics(run_dir)
+    with open(run_dir / "metrics.csv", newline="") as f:
+        return [{k: float(v) if v not in ("", None) else None for k, v in row.items()} for row in csv.DictReader(f)]
+
+
 def run_curves(run_dir: pathlib.Path, up_to: float) -> dict:
     """Seeds x iterations arrays of a run's metrics up to `up_to` env steps per seed, with its config."""
-    rows = read_metrics(run_dir)
+    rows = metric_rows(run_dir)
     per_iteration = min((r["env_steps"] for r in rows), default=0)
     rows = [r for r in rows if r["env_steps"] - per_iteration < up_to]  # the iteration crossing up_to is kept
     if not rows:
         raise SystemExit(f"{run_dir}: no training metrics up to {up_to:g} env steps")
     spec = load_spec(run_dir)
-    seeds = sorted({r["seed_index"] for r in rows})
-    iterations = sorted({r["iteration"] for r in rows})
+    seeds = sorted({int(r["seed_index"]) for r in rows})
+    iterations = sorted({int(r["iteration"]) for r in rows})
     keys = ("success_rate", "break_rate", "contact_fraction", "wall_clock_s")
     curves = {k: np.full((len(seeds), len(iterations)), np.nan) for k in keys}
     steps = np.zeros(len(iterations))
     for r in rows:
-        j = iterations.index(r["iteration"])
+        j = iterations.index(int(r["iteration"]))
         for k in keys:
-            curves[k][r["seed_index"], j] = np.nan if r.get(k) is None else r[k]
+            curves[k][int(r["seed_index"]), j] = np.nan if r.get(k) is None else r[k]
         steps[j] = r["env_steps"]
     window = math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps)
     return {"env_steps": steps, "window": window, "spec": spec, **curves}
