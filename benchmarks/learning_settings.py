@@ -12,8 +12,8 @@ that crosses `--up-to` env steps per seed:
 - the fraction of env steps in contact and the fraction of episodes that broke the peg, mean over
   seeds, averaged over the one-episode window ending at the first iteration reaching 0.25M / 0.5M /
   1M env steps;
-- training throughput: env steps of all seeds per second of wall clock, compilation included
-  (only meaningful for a run that had the cores to itself).
+- training throughput: env steps of all seeds per second of wall clock, compilation included ('-'
+  for a resumed run, whose logged clock restarts; only meaningful for a run alone on the cores).
 Prints a markdown table; `--json` also writes the numbers.
 """
 
@@ -84,7 +84,8 @@ def summarize(curves: dict) -> dict:
         return float(np.nanmean(curves[key][:, max(j - window + 1, 0):j + 1]))
 
     ppo = curves["spec"].ppo
-    seconds = float(np.nanmax(curves["wall_clock_s"][:, -1]))
+    clock = np.nanmax(curves["wall_clock_s"], axis=0)
+    seconds = float(clock[-1]) if np.all(np.diff(clock) >= 0) else float("nan")  # a resumed run restarts its clock
     return {
         "env_steps_per_seed": float(steps[-1]), "seeds": int(success.shape[0]),
         "settings": {"rollout_steps": ppo.rollout_steps, "epochs": ppo.epochs, "minibatches": ppo.minibatches,
@@ -118,7 +119,7 @@ def table(rows: dict[str, dict]) -> str:
         lines.append(f"| {label} | {r['env_steps_per_seed'] / 1e6:.2f}M | {_steps(r['steps_to']['0.5'])} "
                      f"| {_steps(r['steps_to']['0.8'])} | {_steps(r['steps_to']['0.9'])} | {best} "
                      f"| {_pct(r['contact_fraction_at'].values())} | {_pct(r['break_rate_at'].values())} "
-                     f"| {r['env_steps_per_s']:,.0f} |")
+                     f"| {'-' if math.isnan(r['env_steps_per_s']) else format(r['env_steps_per_s'], ',.0f')} |")
     return "\n".join(lines)
 
 
