@@ -22,7 +22,8 @@ import sys
 import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 
 METHODS = ("pose", "vices", "hybrid", "match")
-NETWORK_FLAGS = ("actor_hidden", "actor_blocks", "critic_hidden", "critic_blocks")
+NETWORK_FIELDS = ("actor_hidden", "actor_blocks", "critic_hidden", "critic_blocks", "initial_log_std",
+                  "initial_p_position")  # flags that replace a field of the preset's NetworkConfig
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -132,8 +133,7 @@ def build_spec(args: argparse.Namespace):
     if args.ssl_contact_only:
         overrides["ssl_samples"] = "contact"
     ppo = get_preset(args.preset, **overrides)
-    network = {name: getattr(args, name) for name in NETWORK_FLAGS + ("initial_log_std", "initial_p_position")
-               if getattr(args, name) is not None}
+    network = {name: getattr(args, name) for name in NETWORK_FIELDS if getattr(args, name) is not None}
     if network:
         ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, **network))
     env = FPiHConfig(control=ppo.control)

@@ -343,7 +343,6 @@ def test_train_cli_controller_and_force_law_flags(tmp_path):
     assert spec.env.break_sampling == "policy_step"
 
 
-
 def test_train_cli_network_flags(tmp_path, capsys):
     """--actor-hidden/--actor-blocks/--critic-hidden/--critic-blocks/--initial-p-position replace those
     fields of the preset's network only; a bad value is a one-line error naming it."""
