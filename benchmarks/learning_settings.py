@@ -28,6 +28,7 @@ import pathlib
 import numpy as np
 
 from match_jax.claims import steps_to
+from match_jax.experiments import metric_arrays
 from match_jax.training import load_spec, read_metrics
 
 THRESHOLDS = (0.5, 0.8, 0.9)
@@ -50,18 +51,9 @@ def run_curves(run_dir: pathlib.Path, up_to: float) -> dict:
     if not rows:
         raise SystemExit(f"{run_dir}: no training metrics up to {up_to:g} env steps")
     spec = load_spec(run_dir)
-    seeds = sorted({int(r["seed_index"]) for r in rows})
-    iterations = sorted({int(r["iteration"]) for r in rows})
-    keys = ("success_rate", "break_rate", "contact_fraction", "wall_clock_s")
-    curves = {k: np.full((len(seeds), len(iterations)), np.nan) for k in keys}
-    steps = np.zeros(len(iterations))
-    for r in rows:
-        j = iterations.index(int(r["iteration"]))
-        for k in keys:
-            curves[k][int(r["seed_index"]), j] = np.nan if r.get(k) is None else r[k]
-        steps[j] = r["env_steps"]
+    curves = metric_arrays(rows, ("success_rate", "break_rate", "contact_fraction", "wall_clock_s"))
     window = math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps)
-    return {"env_steps": steps, "window": window, "spec": spec, **curves}
+    return {"window": window, "spec": spec, **curves}
 
 
 def smoothed(rate: np.ndarray, window: int) -> np.ndarray:

@@ -269,6 +269,21 @@ def _row(grid: list[dict], noise_type: str, noise_mm: float | None, breakable: b
 CURVE_KEYS = ("success_rate", "break_rate", "episodes", "contact_fraction", "p_force_free_axis")
 
 
+def metric_arrays(rows: list[dict], keys) -> dict[str, np.ndarray]:
+    """Per-iteration metric rows (one per iteration and seed) as seeds x iterations arrays of `keys`
+    (NaN where a row has None), plus 'env_steps': env steps per seed at each iteration."""
+    seeds = sorted({int(r["seed_index"]) for r in rows})
+    iterations = sorted({int(r["iteration"]) for r in rows})
+    arrays = {key: np.full((len(seeds), len(iterations)), np.nan) for key in keys}
+    steps = np.zeros(len(iterations))
+    for r in rows:
+        j = iterations.index(int(r["iteration"]))
+        for key in keys:
+            arrays[key][int(r["seed_index"]), j] = np.nan if r.get(key) is None else r[key]
+        steps[j] = r["env_steps"]
+    return {"env_steps": steps, **arrays}
+
+
 def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
     """Per run name: the CURVE_KEYS metrics (seeds x iterations), env steps per iteration, the smoothing
     window (iterations spanning one episode per env), the step budget and each seed's best checkpoint
@@ -278,18 +293,10 @@ def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
         rows = read_metrics(cfg.out / "runs" / name)
         if not rows:
             continue
-        seeds = sorted({r["seed_index"] for r in rows})
-        iterations = sorted({r["iteration"] for r in rows})
-        logged = {key: np.full((len(seeds), len(iterations)), np.nan) for key in CURVE_KEYS}
-        steps = np.zeros(len(iterations))
-        for r in rows:
-            j = iterations.index(r["iteration"])
-            for key in CURVE_KEYS:
-                logged[key][r["seed_index"], j] = np.nan if r.get(key) is None else r[key]
-            steps[j] = r["env_steps"]
+        logged = metric_arrays(rows, CURVE_KEYS)
         spec = run_spec(name, cfg)
-        best = [best_record(cfg.out / "runs" / name, i) or {} for i in range(len(seeds))]
-        curves[name] = {"env_steps": steps, **logged, "budget": spec.ppo.total_steps,
+        best = [best_record(cfg.out / "runs" / name, i) or {} for i in range(logged["success_rate"].shape[0])]
+        curves[name] = {**logged, "budget": spec.ppo.total_steps,
                         "window": math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps),
                         "best_env_steps": [b.get("env_steps") for b in best]}
     return curves
