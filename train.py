@@ -23,7 +23,7 @@ import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 
 METHODS = ("pose", "vices", "hybrid", "match")
 NETWORK_FIELDS = ("actor_hidden", "actor_blocks", "critic_hidden", "critic_blocks", "initial_log_std",
-                  "initial_p_position")  # flags that replace a field of the preset's NetworkConfig
+                  "initial_p_position", "initial_force_z")  # flags that replace a field of the preset's NetworkConfig
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -59,6 +59,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--initial-p-position", type=float, default=None,
                         help="hybrid methods: the untrained policy's probability of position control per axis "
                              "(default 0.93, as in the paper)")
+    parser.add_argument("--initial-force-z", type=float, default=None,
+                        help="hybrid methods: the force-z target (N, < 0 presses down) the untrained policy's mean "
+                             "commands (default -1)")
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10; inf = unbreakable)")
@@ -107,6 +110,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                          f"got {args.initial_log_std}")
     if args.initial_p_position is not None and not 0 < args.initial_p_position < 1:
         parser.error(f"--initial-p-position must be in (0, 1), got {args.initial_p_position}")
+    if args.initial_force_z is not None:
+        from match_jax.controllers.action_spaces import ActionConfig
+        low, high = ActionConfig().force_z_range
+        if not low <= args.initial_force_z <= high:
+            parser.error(f"--initial-force-z must be in [{low:g}, {high:g}] N (the force-z action range), "
+                         f"got {args.initial_force_z}")
     if args.ssl_coef is not None and not args.ssl_coef >= 0:
         parser.error(f"--ssl-coef must be >= 0, got {args.ssl_coef}")
     return args

@@ -34,15 +34,16 @@ SETTINGS = {
     "MATCH": dict(method="match"),
     "MATCH, literal force law": dict(method="match", force_law="literal"),
     "MATCH, initial p(position) 0.99": dict(method="match", initial_p_position=0.99),
+    "MATCH, initial force-z 0 N": dict(method="match", initial_force_z=0.0),
+    "MATCH, initial force-z -0.5 N": dict(method="match", initial_force_z=-0.5),
 }
 
 
-def untrained_episodes(method: str, episodes: int, force_law: str = "damped",
-                       initial_p_position: float | None = None) -> dict:
-    """Break and contact statistics of one setting's untrained, stochastic policy (see the module docstring)."""
+def untrained_episodes(method: str, episodes: int, force_law: str = "damped", **network) -> dict:
+    """Break and contact statistics of one setting's untrained, stochastic policy (see the module docstring);
+    `network` replaces fields of the preset's NetworkConfig (e.g. initial_p_position=0.99)."""
     ppo = get_preset("cpu", method=method)
-    if initial_p_position is not None:
-        ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, initial_p_position=initial_p_position))
+    ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, **network))
     env_config = FPiHConfig(control=ppo.control)
     if force_law != "damped":
         env_config = dataclasses.replace(env_config, controller=env_config.controller.with_force_law(force_law))
@@ -77,6 +78,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=64, help="episodes per setting (default 64)")
     parser.add_argument("--json", type=pathlib.Path, default=None, help="also write the numbers here")
+    parser.add_argument("--only", nargs="+", metavar="SETTING", choices=list(SETTINGS), default=list(SETTINGS),
+                        help="run only these settings (default: all)")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be a positive integer, got {args.episodes}")
@@ -84,8 +87,8 @@ def main(argv=None) -> int:
     print("| setting | episodes broken % | episodes touching the block % | force-selected axis-steps % "
           "| mean step of first contact | mean step of the break | breaks on the first contact step % |")
     print("|---|---|---|---|---|---|---|")
-    for label, setting in SETTINGS.items():
-        r = rows[label] = untrained_episodes(episodes=args.episodes, **setting)
+    for label in args.only:
+        r = rows[label] = untrained_episodes(episodes=args.episodes, **SETTINGS[label])
         print(f"| {label} | {100 * r['breaks']:.0f} | {100 * r['contact_episodes']:.0f} | {100 * r['force_selected']:.1f} "
               f"| {r['first_contact_step']:.0f} | {r['break_step']:.0f} | {100 * r['breaks_at_first_contact']:.0f} |",
               flush=True)

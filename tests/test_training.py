@@ -344,16 +344,18 @@ def test_train_cli_controller_and_force_law_flags(tmp_path):
 
 
 def test_train_cli_network_flags(tmp_path, capsys):
-    """--actor-hidden/--actor-blocks/--critic-hidden/--critic-blocks/--initial-p-position replace those
+    """--actor-hidden/--actor-blocks/--critic-hidden/--critic-blocks/--initial-p-position/--initial-force-z replace those
     fields of the preset's network only; a bad value is a one-line error naming it."""
     preset = train_cli.build_spec(train_cli.parse_args(["--method", "match", "--out", str(tmp_path)])).ppo.network
     spec = train_cli.build_spec(train_cli.parse_args(
         ["--method", "match", "--actor-hidden", "256", "--critic-blocks", "3", "--initial-p-position", "0.99",
-         "--out", str(tmp_path)]))
-    assert spec.ppo.network == dataclasses.replace(preset, actor_hidden=256, critic_blocks=3, initial_p_position=0.99)
+         "--initial-force-z", "0", "--out", str(tmp_path)]))
+    assert spec.ppo.network == dataclasses.replace(preset, actor_hidden=256, critic_blocks=3, initial_p_position=0.99,
+                                                   initial_force_z=0.0)
     for flag, value, message in (("--critic-hidden", "0", "--critic-hidden must be a positive integer, got 0"),
                                  ("--actor-blocks", "-1", "--actor-blocks must be an integer >= 0, got -1"),
-                                 ("--initial-p-position", "1", "--initial-p-position must be in (0, 1), got 1.0")):
+                                 ("--initial-p-position", "1", "--initial-p-position must be in (0, 1), got 1.0"),
+                                 ("--initial-force-z", "5", "--initial-force-z must be in [-20, 0] N")):
         with pytest.raises(SystemExit):
             train_cli.parse_args(["--method", "match", flag, value, "--out", str(tmp_path)])
         assert message in capsys.readouterr().err.strip().splitlines()[-1]
