@@ -4,6 +4,7 @@
     python train.py --method pose --preset cpu --seeds 3 --total-steps 2000000 --out runs/pose_cpu
     python train.py --method match --no-ssl --preset paper --seeds 5 --out runs/match_nossl
     python train.py --resume --out runs/match_cpu          # continue an interrupted run
+    python train.py --resume --total-steps 8000000 --out runs/match_cpu   # train a finished run further
 
 All seeds train in one XLA program. The run directory gets config.json, metrics.jsonl/.csv (one row
 per iteration and seed: success and break rate of the episodes that ended, losses, ...) and orbax
@@ -24,6 +25,7 @@ import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 METHODS = ("pose", "vices", "hybrid", "match")
 NETWORK_FIELDS = ("actor_hidden", "actor_blocks", "critic_hidden", "critic_blocks", "initial_log_std",
                   "initial_p_position", "initial_force_z")  # flags that replace a field of the preset's NetworkConfig
+RESUME_FLAGS = ("resume", "out", "total_steps", "max_chunks", "time_budget_min", "no_progress")  # apply with --resume
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -85,6 +87,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if not args.resume and args.method is None:
         parser.error("--method is required (unless --resume)")
+    if args.resume:  # the run's config.json defines it; only the budget and how this call runs may change
+        ignored = [name for name, value in vars(args).items()
+                   if name not in RESUME_FLAGS and value != parser.get_default(name)]
+        if ignored:
+            parser.error(f"--resume continues the run as its config.json defines it; --{ignored[0].replace('_', '-')} "
+                         "cannot change it (only --total-steps, --max-chunks, --time-budget-min, --no-progress)")
     for name in ("seeds", "total_steps", "num_envs", "max_chunks", "rollout_steps", "epochs", "minibatches",
                  "iterations_per_chunk", "actor_hidden", "critic_hidden"):
         value = getattr(args, name)
@@ -169,7 +177,8 @@ def main(argv=None) -> int:
     try:
         spec = None if args.resume else build_spec(args)
         summary = train(spec, args.out, resume=args.resume, progress=not args.no_progress, max_chunks=args.max_chunks,
-                        time_budget_s=None if args.time_budget_min is None else 60.0 * args.time_budget_min)
+                        time_budget_s=None if args.time_budget_min is None else 60.0 * args.time_budget_min,
+                        total_steps=args.total_steps if args.resume else None)
     except (RunError, CheckpointError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -8,7 +8,8 @@ one 150-step episode in each of `--episodes` envs (gaussian 1 mm hole noise, 10 
 setting: the fraction of episodes that broke the peg, that touched the block, the fraction of
 axis-steps with force control selected, and the mean policy step of the first contact and of the
 break. Settings: Pose; MATCH and Hybrid-Basic with the default damped force law; MATCH with the
-literal force law; MATCH with the untrained selection at p(position) 0.99 instead of 0.93.
+literal force law; MATCH with the untrained selection at p(position) 0.99 instead of 0.93; MATCH with
+the untrained mean force-z target at 0, -0.5 and -10 N (mid-range, a zero mean action) instead of -1 N.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ SETTINGS = {
     "MATCH, initial p(position) 0.99": dict(method="match", initial_p_position=0.99),
     "MATCH, initial force-z 0 N": dict(method="match", initial_force_z=0.0),
     "MATCH, initial force-z -0.5 N": dict(method="match", initial_force_z=-0.5),
+    "MATCH, initial force-z -10 N (mean action 0)": dict(method="match", initial_force_z=None),
 }
 
 

@@ -314,10 +314,11 @@ def read_metrics(run_dir: str | pathlib.Path) -> list[dict]:
 
 
 def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = False, progress: bool = True,
-          max_chunks: int | None = None, time_budget_s: float | None = None) -> dict:
+          max_chunks: int | None = None, time_budget_s: float | None = None, total_steps: int | None = None) -> dict:
     """Train (or, with resume=True, continue) a run in `run_dir`; returns a summary dict.
 
-    With resume the spec is read from run_dir/config.json (`spec` may be None). `max_chunks` stops
+    With resume the spec is read from run_dir/config.json (`spec` may be None); `total_steps` (env steps
+    per seed) then replaces its step budget, to train a finished run further. `max_chunks` stops
     after that many chunks (tests); `time_budget_s` stops after the first chunk that ends more than
     that many seconds (wall clock, compilation included) after the call began. Either way the run is
     checkpointed and can be resumed later.
@@ -342,10 +343,20 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         (run_dir / "config.json").write_text(spec.to_json())
         (run_dir / "metrics.jsonl").write_text("")
 
+    if total_steps is not None and not resume:
+        raise RunError("total_steps replaces a resumed run's budget; a new run takes it from its spec")
+    if total_steps is not None:
+        spec = dataclasses.replace(spec, ppo=dataclasses.replace(spec.ppo, total_steps=total_steps))
     run = Run(spec, run_dir)
     ppo = spec.ppo
     if resume:
         state = run.restore_latest()
+        trained = int(np.asarray(state.env_steps)[0])
+        if total_steps is not None:
+            if total_steps < trained:
+                raise RunError(f"total steps {total_steps} is below the {trained} env steps per seed {run_dir} "
+                               "has trained")
+            (run_dir / "config.json").write_text(spec.to_json())
         _truncate_metrics(run_dir / "metrics.jsonl", int(np.asarray(state.iteration)[0]))
     else:
         state = run.initial_state()

@@ -154,6 +154,13 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypat
     # finishing: one more resume completes the 4-iteration budget
     done = train(None, split, resume=True, progress=False)
     assert done["finished"] and done["iterations"] == 4
+    # a finished run trains further with a larger budget, which its config.json then records
+    with pytest.raises(RunError, match="below the 128 env steps per seed"):
+        train(None, split, resume=True, progress=False, total_steps=3 * 32)
+    further = train(None, split, resume=True, progress=False, total_steps=5 * 32)
+    assert further["finished"] and further["iterations"] == 5 and further["env_steps_per_seed"] == 5 * 32
+    assert RunSpec.from_json((split / "config.json").read_text()).ppo.total_steps == 5 * 32
+    assert len(read_metrics(split)) == 10
     # Ctrl-C during a chunk: the message says whether there is a checkpoint to resume from
     def interrupted_chunk(self, state):
         raise KeyboardInterrupt
@@ -191,6 +198,8 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         ["--method", "match", "--time-budget-min", "-1", "--out", str(tmp_path / "a")])
     assert "--initial-log-std must be in (-5, 1) (the actor's log-std bounds), got 2.0" in error_of(
         ["--method", "match", "--initial-log-std", "2", "--out", str(tmp_path / "a")])
+    assert "--resume continues the run as its config.json defines it; --learning-rate cannot change it" in error_of(
+        ["--resume", "--learning-rate", "1e-3", "--out", str(tmp_path / "a")])
     (tmp_path / "empty").mkdir()
     assert train_cli.main(["--resume", "--out", str(tmp_path / "empty")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
