@@ -325,6 +325,8 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     """
     if time_budget_s is not None and not time_budget_s > 0:
         raise RunError(f"time budget must be > 0 seconds, got {time_budget_s}")
+    if total_steps is not None and not resume:
+        raise RunError("total_steps replaces a resumed run's budget; a new run takes it from its spec")
     call_start = time.time()
     run_dir = pathlib.Path(run_dir)
     latest = checkpoints.latest_dir(run_dir)
@@ -343,8 +345,6 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         (run_dir / "config.json").write_text(spec.to_json())
         (run_dir / "metrics.jsonl").write_text("")
 
-    if total_steps is not None and not resume:
-        raise RunError("total_steps replaces a resumed run's budget; a new run takes it from its spec")
     if total_steps is not None:
         spec = dataclasses.replace(spec, ppo=dataclasses.replace(spec.ppo, total_steps=total_steps))
     run = Run(spec, run_dir)
