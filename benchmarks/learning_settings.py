@@ -28,7 +28,7 @@ import pathlib
 import numpy as np
 
 from match_jax.claims import steps_to
-from match_jax.experiments import metric_arrays
+from match_jax.experiments import episode_window, metric_arrays
 from match_jax.training import load_spec, read_metrics
 
 THRESHOLDS = (0.5, 0.8, 0.9)
@@ -52,8 +52,7 @@ def run_curves(run_dir: pathlib.Path, up_to: float) -> dict:
         raise SystemExit(f"{run_dir}: no training metrics up to {up_to:g} env steps")
     spec = load_spec(run_dir)
     curves = metric_arrays(rows, ("success_rate", "break_rate", "contact_fraction", "wall_clock_s"))
-    window = math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps)
-    return {"window": window, "spec": spec, **curves}
+    return {"window": episode_window(spec), "spec": spec, **curves}
 
 
 def smoothed(rate: np.ndarray, window: int) -> np.ndarray:

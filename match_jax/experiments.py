@@ -284,6 +284,11 @@ def metric_arrays(rows: list[dict], keys) -> dict[str, np.ndarray]:
     return {"env_steps": steps, **arrays}
 
 
+def episode_window(spec) -> int:
+    """Iterations that span one episode per env: the window training success is smoothed over."""
+    return math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps)
+
+
 def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
     """Per run name: the CURVE_KEYS metrics (seeds x iterations), env steps per iteration, the smoothing
     window (iterations spanning one episode per env), the step budget and each seed's best checkpoint
@@ -297,7 +302,7 @@ def learning_curves(cfg: SuiteConfig) -> dict[str, dict]:
         spec = run_spec(name, cfg)
         best = [best_record(cfg.out / "runs" / name, i) or {} for i in range(logged["success_rate"].shape[0])]
         curves[name] = {**logged, "budget": spec.ppo.total_steps,
-                        "window": math.ceil(spec.env.episode_steps / spec.ppo.rollout_steps),
+                        "window": episode_window(spec),
                         "best_env_steps": [b.get("env_steps") for b in best]}
     return curves
 

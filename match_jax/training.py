@@ -351,8 +351,8 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     ppo = spec.ppo
     if resume:
         state = run.restore_latest()
-        trained = int(np.asarray(state.env_steps)[0])
         if total_steps is not None:
+            trained = int(np.asarray(state.env_steps)[0])
             if total_steps < trained:
                 raise RunError(f"total steps {total_steps} is below the {trained} env steps per seed {run_dir} "
                                "has trained")
