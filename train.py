@@ -51,7 +51,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--minibatches", type=int, default=None, help="minibatches per epoch (preset default)")
     parser.add_argument("--iterations-per-chunk", type=int, default=None,
                         help="PPO iterations per jitted call, between logs and checkpoints (preset default)")
-    parser.add_argument("--learning-rate", type=float, default=None)
+    parser.add_argument("--learning-rate", type=float, default=None, help="Adam step size (default 3e-4)")
+    parser.add_argument("--learning-rate-end", type=float, default=None,
+                        help="decay the step size linearly from --learning-rate to this value over the run's budget "
+                             "(default: constant)")
     parser.add_argument("--actor-hidden", type=int, default=None, help="actor SimBa width (preset default)")
     parser.add_argument("--actor-blocks", type=int, default=None, help="actor SimBa residual blocks (preset default)")
     parser.add_argument("--critic-hidden", type=int, default=None, help="critic SimBa width (preset default)")
@@ -110,6 +113,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error(f"--break-force must be > 0 N, got {args.break_force}")
     if args.learning_rate is not None and not args.learning_rate > 0:
         parser.error(f"--learning-rate must be > 0, got {args.learning_rate}")
+    if args.learning_rate_end is not None and not (args.learning_rate_end >= 0 and math.isfinite(args.learning_rate_end)):
+        parser.error(f"--learning-rate-end must be a finite number >= 0, got {args.learning_rate_end}")
     if args.initial_log_std is not None:
         from match_jax.networks import NetworkConfig
         low, high = NetworkConfig.min_log_std, NetworkConfig.max_log_std
@@ -135,8 +140,8 @@ def build_spec(args: argparse.Namespace):
     from match_jax.training import RunSpec
 
     overrides = {"method": args.method}
-    for name in ("total_steps", "num_envs", "learning_rate", "rollout_steps", "epochs", "minibatches",
-                 "iterations_per_chunk"):
+    for name in ("total_steps", "num_envs", "learning_rate", "learning_rate_end", "rollout_steps", "epochs",
+                 "minibatches", "iterations_per_chunk"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     if args.no_ssl:

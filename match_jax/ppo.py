@@ -67,6 +67,9 @@ class PPOConfig:
     epochs: int = 4
     minibatches: int = 8
     learning_rate: float = 3e-4
+    # None: a constant step size; else Adam's step size decays linearly from learning_rate to this value
+    # over the run's budget (num_iterations x optimizer_steps_per_iteration updates)
+    learning_rate_end: float | None = None
     adam_b1: float = 0.9
     adam_b2: float = 0.999
     adam_eps: float = 1e-5
@@ -100,6 +103,8 @@ class PPOConfig:
         for name in ("gamma", "gae_lambda"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
+        if self.learning_rate_end is not None and not self.learning_rate_end >= 0:
+            raise ValueError(f"learning_rate_end must be >= 0 or None, got {self.learning_rate_end!r}")
         for name in ("ssl_coef", "value_coef", "entropy_coef"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
@@ -115,6 +120,13 @@ class PPOConfig:
     @property
     def num_iterations(self) -> int:
         return -(-self.total_steps // self.steps_per_iteration)
+
+    @property
+    def optimizer_steps_per_iteration(self) -> int:
+        """Adam updates per network per PPO iteration: epochs x minibatches, plus one SSL epoch when
+        ssl_phase is 'after'."""
+        ssl_steps = self.minibatches if self.ssl_phase == "after" and self.uses_ssl else 0
+        return self.epochs * self.minibatches + ssl_steps
 
     @property
     def uses_ssl(self) -> bool:
@@ -256,11 +268,21 @@ class Learner(NamedTuple):
     ssl_beta: Any  # the selection loss's weight (a traced scalar when given as a RuntimeValues)
 
 
+def learning_rate_schedule(config: PPOConfig) -> float | optax.Schedule:
+    """Adam's step size: the constant learning_rate, or a linear decay to learning_rate_end over the
+    run's budget of optimizer updates (held at learning_rate_end after it)."""
+    if config.learning_rate_end is None:
+        return config.learning_rate
+    return optax.linear_schedule(config.learning_rate, config.learning_rate_end,
+                                 config.num_iterations * config.optimizer_steps_per_iteration)
+
+
 def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
     """Adam with global-norm clipping, one per network (actor and critic clipped separately)."""
     def one():
         return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
-                           optax.adam(config.learning_rate, b1=config.adam_b1, b2=config.adam_b2, eps=config.adam_eps))
+                           optax.adam(learning_rate_schedule(config), b1=config.adam_b1, b2=config.adam_b2,
+                                      eps=config.adam_eps))
     return optax.multi_transform({"actor": one(), "critic": one()}, {"actor": "actor", "critic": "critic"})
 
 
@@ -483,6 +505,9 @@ def iteration(learner: Learner, ts: TrainState) -> tuple[TrainState, dict]:
         contact_fraction=counts["contact_steps"] / config.steps_per_iteration,
         action_std=jnp.exp(params["actor"]["params"]["log_std"]).mean(-1),
     )
+    step_size = learning_rate_schedule(config)  # this iteration's first Adam step size
+    metrics["learning_rate"] = (step_size(ts.iteration * config.optimizer_steps_per_iteration) if callable(step_size)
+                                else jnp.full(ts.iteration.shape, step_size))
     env_steps = ts.env_steps + config.steps_per_iteration
     metrics.update(iteration=ts.iteration + 1, env_steps=env_steps)
     ts = TrainState(params, opt_state, out.policy_stats, out.critic_stats, out.env_state, out.episode_success,

@@ -39,7 +39,7 @@ from match_jax.ppo import SSL_BETA, PPOConfig, RuntimeValues, Trainer, TrainStat
 
 LOGGED = ("iteration", "env_steps", "success_rate", "break_rate", "episodes", "mean_reward", "contact_fraction",
           "loss", "policy_loss", "value_loss", "ssl_loss", "entropy", "approx_kl", "clip_fraction", "p_force",
-          "action_std", "p_force_contact", "p_force_free", "p_force_contact_axis", "p_force_free_axis")
+          "action_std", "p_force_contact", "p_force_free", "p_force_contact_axis", "p_force_free_axis", "learning_rate")
 
 
 class RunError(ValueError):
@@ -318,7 +318,8 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     """Train (or, with resume=True, continue) a run in `run_dir`; returns a summary dict.
 
     With resume the spec is read from run_dir/config.json (`spec` may be None); `total_steps` (env steps
-    per seed) then replaces its step budget, to train a finished run further. `max_chunks` stops
+    per seed) then replaces its step budget, to train a finished run further (not for a run whose
+    learning rate decays over its budget). `max_chunks` stops
     after that many chunks (tests); `time_budget_s` stops after the first chunk that ends more than
     that many seconds (wall clock, compilation included) after the call began. Either way the run is
     checkpointed and can be resumed later.
@@ -345,7 +346,10 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         (run_dir / "config.json").write_text(spec.to_json())
         (run_dir / "metrics.jsonl").write_text("")
 
-    if total_steps is not None:
+    if total_steps is not None and total_steps != spec.ppo.total_steps:
+        if spec.ppo.learning_rate_end is not None:
+            raise RunError(f"{run_dir} decays its learning rate over its budget of {spec.ppo.total_steps} env steps; "
+                           "a new budget would restart the decay, so it cannot take one")
         spec = dataclasses.replace(spec, ppo=dataclasses.replace(spec.ppo, total_steps=total_steps))
     run = Run(spec, run_dir)
     ppo = spec.ppo

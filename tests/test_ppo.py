@@ -11,7 +11,7 @@ import pytest
 
 from match_jax.envs.point_mass import PointMassEnv
 from match_jax.networks import NetworkConfig
-from match_jax.ppo import PPOConfig, generalized_advantages, make_trainer
+from match_jax.ppo import PPOConfig, generalized_advantages, learning_rate_schedule, make_optimizer, make_trainer
 
 
 def test_ppo_solves_point_mass_reaching():
@@ -33,6 +33,34 @@ def test_ppo_solves_point_mass_reaching():
     assert np.all(np.isfinite(np.asarray(metrics["loss"])))
     assert not np.allclose(rewards[:, 0], rewards[:, 1])  # the seeds are different runs
     assert int(state.env_steps[0]) == 40 * 32 * 50
+
+
+def test_learning_rate_decays_linearly_over_the_budget():
+    """learning_rate_end: Adam's step size falls linearly to it over num_iterations x updates per iteration,
+    the logged learning_rate follows, and Adam on a constant gradient moves by exactly that step size."""
+    cfg = PPOConfig(method="pose", num_envs=4, rollout_steps=8, iterations_per_chunk=4, epochs=2, minibatches=2,
+                    learning_rate=1e-3, learning_rate_end=0.0, total_steps=4 * 4 * 8,
+                    network=NetworkConfig(8, 1, 8, 1))
+    assert cfg.optimizer_steps_per_iteration == 4 and cfg.num_iterations == 4
+    assert PPOConfig(method="match", ssl_phase="after", epochs=2, minibatches=2).optimizer_steps_per_iteration == 6
+    assert PPOConfig(method="pose", ssl_phase="after", epochs=2, minibatches=2).optimizer_steps_per_iteration == 4
+    schedule = learning_rate_schedule(cfg)
+    np.testing.assert_allclose([schedule(t) for t in (0, 4, 8, 16, 32)], [1e-3, 7.5e-4, 5e-4, 0.0, 0.0], atol=1e-12)
+    assert learning_rate_schedule(dataclasses.replace(cfg, learning_rate_end=None)) == 1e-3  # constant
+
+    optimizer = make_optimizer(cfg)
+    params = {"actor": jnp.zeros(()), "critic": jnp.zeros(())}
+    opt_state, moves = optimizer.init(params), []
+    for _ in range(16):
+        updates, opt_state = optimizer.update({"actor": jnp.ones(()), "critic": jnp.ones(())}, opt_state, params)
+        moves.append(-float(updates["actor"]))
+    np.testing.assert_allclose(moves, [float(schedule(t)) for t in range(16)], rtol=1e-4, atol=1e-9)
+
+    trainer = make_trainer(cfg, PointMassEnv())
+    state = jax.jit(trainer.init)(jax.random.split(jax.random.PRNGKey(0), 2))
+    state, metrics = jax.jit(trainer.train_chunk)(state)
+    np.testing.assert_allclose(np.asarray(metrics["learning_rate"]),
+                               np.repeat([[1e-3], [7.5e-4], [5e-4], [2.5e-4]], 2, axis=1), rtol=1e-6)
 
 
 def _gae_numpy(reward, value, final_value, last_value, done, truncation, gamma, lam):
@@ -81,6 +109,7 @@ def test_gae_bootstraps_time_outs_and_not_breaks():
     ("ssl_coef", -1.0, "ssl_coef must be >= 0"),
     ("ssl_phase", "before", "ssl_phase must be 'joint' or 'after', got 'before'"),
     ("ssl_samples", "free", "ssl_samples must be 'all' or 'contact', got 'free'"),
+    ("learning_rate_end", -1e-4, "learning_rate_end must be >= 0 or None, got -0.0001"),
 ])
 def test_bad_config_is_named(field, value, match):
     with pytest.raises(ValueError, match=match):

@@ -161,6 +161,14 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypat
     assert further["finished"] and further["iterations"] == 5 and further["env_steps_per_seed"] == 5 * 32
     assert RunSpec.from_json((split / "config.json").read_text()).ppo.total_steps == 5 * 32
     assert len(read_metrics(split)) == 10
+    assert all(row["learning_rate"] == pytest.approx(spec.ppo.learning_rate) for row in read_metrics(split))
+    # a run whose learning rate decays over its budget cannot take a new one (the decay would restart)
+    import shutil
+    decaying = shutil.copytree(split, tmp_path / "decaying")
+    decayed = dataclasses.replace(spec, ppo=dataclasses.replace(spec.ppo, total_steps=5 * 32, learning_rate_end=0.0))
+    (decaying / "config.json").write_text(decayed.to_json())
+    with pytest.raises(RunError, match="decays its learning rate over its budget of 160 env steps"):
+        train(None, decaying, resume=True, progress=False, total_steps=6 * 32)
     # Ctrl-C during a chunk: the message says whether there is a checkpoint to resume from
     def interrupted_chunk(self, state):
         raise KeyboardInterrupt
@@ -196,6 +204,8 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         ["--method", "match", "--total-steps", "0", "--out", str(tmp_path / "a")])
     assert "--time-budget-min must be a positive number of minutes, got -1.0" in error_of(
         ["--method", "match", "--time-budget-min", "-1", "--out", str(tmp_path / "a")])
+    assert "--learning-rate-end must be a finite number >= 0, got -0.001" in error_of(
+        ["--method", "match", "--learning-rate-end=-1e-3", "--out", str(tmp_path / "a")])
     assert "--initial-log-std must be in (-5, 1) (the actor's log-std bounds), got 2.0" in error_of(
         ["--method", "match", "--initial-log-std", "2", "--out", str(tmp_path / "a")])
     assert "--resume continues the run as its config.json defines it; --learning-rate cannot change it" in error_of(
@@ -361,6 +371,9 @@ def test_train_cli_network_flags(tmp_path, capsys):
          "--initial-force-z", "0", "--out", str(tmp_path)]))
     assert spec.ppo.network == dataclasses.replace(preset, actor_hidden=256, critic_blocks=3, initial_p_position=0.99,
                                                    initial_force_z=0.0)
+    decaying = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "match", "--learning-rate", "1e-3", "--learning-rate-end", "1e-4", "--out", str(tmp_path)])).ppo
+    assert (decaying.learning_rate, decaying.learning_rate_end, decaying.network) == (1e-3, 1e-4, preset)
     for flag, value, message in (("--critic-hidden", "0", "--critic-hidden must be a positive integer, got 0"),
                                  ("--actor-blocks", "-1", "--actor-blocks must be an integer >= 0, got -1"),
                                  ("--initial-p-position", "1", "--initial-p-position must be in (0, 1), got 1.0"),
