@@ -80,9 +80,12 @@ def summarize(curves: dict) -> dict:
     return {
         "env_steps_per_seed": float(steps[-1]), "seeds": int(success.shape[0]),
         "settings": {"rollout_steps": ppo.rollout_steps, "epochs": ppo.epochs, "minibatches": ppo.minibatches,
-                     "learning_rate": ppo.learning_rate, "num_envs": ppo.num_envs,
+                     "learning_rate": ppo.learning_rate, "learning_rate_end": ppo.learning_rate_end,
+                     "num_envs": ppo.num_envs,
                      "network": [ppo.network.actor_hidden, ppo.network.actor_blocks,
-                                 ppo.network.critic_hidden, ppo.network.critic_blocks]},
+                                 ppo.network.critic_hidden, ppo.network.critic_blocks],
+                     "initial_p_position": ppo.network.initial_p_position,
+                     "initial_force_z": ppo.network.initial_force_z},
         "steps_to": {f"{t:g}": [steps_to(steps, seed, t, window) for seed in curves["success_rate"]]
                      for t in THRESHOLDS},
         "best_success": [float(np.nanmax(s)) if np.isfinite(s).any() else float("nan") for s in success],
