@@ -274,7 +274,10 @@ def test_envs_shard_over_host_devices(tmp_path):
     )
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=3", PYTHONPATH=str(REPO))
     env.pop("JAX_NUM_CPU_DEVICES", None)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=900)
+    try:
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=900)
+    except subprocess.TimeoutExpired:
+        pytest.fail("the 3-device subprocess did not finish within 900 s: a hang, or cores busy with other work")
     assert out.returncode == 0, out.stderr[-3000:]
     assert "ok 2" in out.stdout
 
