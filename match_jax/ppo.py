@@ -103,8 +103,8 @@ class PPOConfig:
         for name in ("gamma", "gae_lambda"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
-        if self.learning_rate_end is not None and not self.learning_rate_end >= 0:
-            raise ValueError(f"learning_rate_end must be >= 0 or None, got {self.learning_rate_end!r}")
+        if self.learning_rate_end is not None and not 0 <= self.learning_rate_end < float("inf"):
+            raise ValueError(f"learning_rate_end must be a finite number >= 0 or None, got {self.learning_rate_end!r}")
         for name in ("ssl_coef", "value_coef", "entropy_coef"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")

@@ -109,7 +109,8 @@ def test_gae_bootstraps_time_outs_and_not_breaks():
     ("ssl_coef", -1.0, "ssl_coef must be >= 0"),
     ("ssl_phase", "before", "ssl_phase must be 'joint' or 'after', got 'before'"),
     ("ssl_samples", "free", "ssl_samples must be 'all' or 'contact', got 'free'"),
-    ("learning_rate_end", -1e-4, "learning_rate_end must be >= 0 or None, got -0.0001"),
+    ("learning_rate_end", -1e-4, "learning_rate_end must be a finite number >= 0 or None, got -0.0001"),
+    ("learning_rate_end", float("inf"), "learning_rate_end must be a finite number >= 0 or None, got inf"),
 ])
 def test_bad_config_is_named(field, value, match):
     with pytest.raises(ValueError, match=match):
