@@ -55,6 +55,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--learning-rate-end", type=float, default=None,
                         help="decay the step size linearly from --learning-rate to this value over the run's budget "
                              "(default: constant)")
+    parser.add_argument("--gamma", type=float, default=None, help="discount per policy step (default 0.995)")
+    parser.add_argument("--gae-lambda", type=float, default=None, help="GAE lambda (default 0.95)")
     parser.add_argument("--actor-hidden", type=int, default=None, help="actor SimBa width (preset default)")
     parser.add_argument("--actor-blocks", type=int, default=None, help="actor SimBa residual blocks (preset default)")
     parser.add_argument("--critic-hidden", type=int, default=None, help="critic SimBa width (preset default)")
@@ -115,6 +117,10 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error(f"--learning-rate must be > 0, got {args.learning_rate}")
     if args.learning_rate_end is not None and not (args.learning_rate_end >= 0 and math.isfinite(args.learning_rate_end)):
         parser.error(f"--learning-rate-end must be a finite number >= 0, got {args.learning_rate_end}")
+    for name in ("gamma", "gae_lambda"):
+        value = getattr(args, name)
+        if value is not None and not 0 <= value <= 1:
+            parser.error(f"--{name.replace('_', '-')} must be in [0, 1], got {value}")
     if args.initial_log_std is not None:
         from match_jax.networks import NetworkConfig
         low, high = NetworkConfig.min_log_std, NetworkConfig.max_log_std
@@ -140,8 +146,8 @@ def build_spec(args: argparse.Namespace):
     from match_jax.training import RunSpec
 
     overrides = {"method": args.method}
-    for name in ("total_steps", "num_envs", "learning_rate", "learning_rate_end", "rollout_steps", "epochs",
-                 "minibatches", "iterations_per_chunk"):
+    for name in ("total_steps", "num_envs", "learning_rate", "learning_rate_end", "gamma", "gae_lambda",
+                 "rollout_steps", "epochs", "minibatches", "iterations_per_chunk"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)
     if args.no_ssl:
