@@ -81,7 +81,7 @@ def summarize(curves: dict) -> dict:
         "env_steps_per_seed": float(steps[-1]), "seeds": int(success.shape[0]),
         "settings": {"rollout_steps": ppo.rollout_steps, "epochs": ppo.epochs, "minibatches": ppo.minibatches,
                      "learning_rate": ppo.learning_rate, "learning_rate_end": ppo.learning_rate_end,
-                     "num_envs": ppo.num_envs,
+                     "gamma": ppo.gamma, "gae_lambda": ppo.gae_lambda, "num_envs": ppo.num_envs,
                      "network": [ppo.network.actor_hidden, ppo.network.actor_blocks,
                                  ppo.network.critic_hidden, ppo.network.critic_blocks],
                      "initial_p_position": ppo.network.initial_p_position,
