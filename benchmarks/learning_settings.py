@@ -3,7 +3,9 @@
     python benchmarks/learning_settings.py "cpu preset=results/suite_cpu/runs/match" \
         "lr 1e-3=runs/match_lr1e-3" --up-to 1000000 --json results/learning_settings/summary.json
 
-Each argument is LABEL=RUN_DIR (a train.py run directory or an exported run; a run still training
+    python benchmarks/learning_settings.py @results/learning_settings/runs.txt --json results/learning_settings/summary.json
+
+Each argument is LABEL=RUN_DIR (or @FILE: one argument per line) (a train.py run directory or an exported run; a run still training
 is read as far as it got). Per run, from its per-iteration training metrics, up to the iteration
 that crosses `--up-to` env steps per seed:
 - each seed's env steps to 50 / 80 / 90 % training success, smoothed over one episode per env (the
@@ -118,7 +120,7 @@ def table(rows: dict[str, dict]) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], fromfile_prefix_chars="@")
     parser.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
     parser.add_argument("--up-to", type=float, default=1_000_000, help="env steps per seed read (default 1M)")
     parser.add_argument("--json", type=pathlib.Path, default=None, help="also write the numbers here")
