@@ -5,9 +5,9 @@
 
     python benchmarks/learning_settings.py @results/learning_settings/runs.txt --json results/learning_settings/summary.json
 
-Each argument is LABEL=RUN_DIR (or @FILE: one argument per line) (a train.py run directory or an exported run; a run still training
-is read as far as it got). Per run, from its per-iteration training metrics, up to the iteration
-that crosses `--up-to` env steps per seed:
+Each argument is LABEL=RUN_DIR, a train.py run directory or an exported run (a run still training
+is read as far as it got), or @FILE, a file holding one such argument per line. Per run, from its
+per-iteration training metrics, up to the iteration that crosses `--up-to` env steps per seed:
 - each seed's env steps to 50 / 80 / 90 % training success, smoothed over one episode per env (the
   suite report's definition; '-' where not reached);
 - each seed's best and last smoothed training success;
