@@ -25,6 +25,17 @@ def test_summary_regenerates_from_the_run_list(tmp_path, monkeypatch, capsys):
     assert "| initial force-z 0 N and learning rate 1e-3 | 1.02M | 0.79M / - / 0.90M |" in capsys.readouterr().out
 
 
+def test_training_docs_table_is_the_printed_table(monkeypatch, capsys):
+    """docs/training.md shows the table the benchmark prints for runs.txt, row for row."""
+    monkeypatch.chdir(REPO)
+    assert _benchmark().main([f"@{RESULTS / 'runs.txt'}"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("|")]
+    assert len(rows) == 2 + len((RESULTS / "runs.txt").read_text().splitlines())  # header, rule, one per run
+    docs = (REPO / "docs" / "training.md").read_text().splitlines()
+    missing = [row for row in rows if row not in docs]
+    assert not missing, f"docs/training.md lacks {missing}"
+
+
 def test_bad_run_argument_is_named(tmp_path, capsys):
     with pytest.raises(SystemExit):
         _benchmark().main(["no-separator"])
