@@ -55,6 +55,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--learning-rate-end", type=float, default=None,
                         help="decay the step size linearly from --learning-rate to this value over the run's budget "
                              "(default: constant)")
+    parser.add_argument("--desired-kl", type=float, default=None,
+                        help="adapt the step size per minibatch to keep the approximate KL to the rollout policy near "
+                             "this value, starting from --learning-rate (default: no adaptation)")
     parser.add_argument("--gamma", type=float, default=None, help="discount per policy step (default 0.995)")
     parser.add_argument("--gae-lambda", type=float, default=None, help="GAE lambda (default 0.95)")
     parser.add_argument("--actor-hidden", type=int, default=None, help="actor SimBa width (preset default)")
@@ -117,6 +120,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error(f"--learning-rate must be > 0, got {args.learning_rate}")
     if args.learning_rate_end is not None and not (args.learning_rate_end >= 0 and math.isfinite(args.learning_rate_end)):
         parser.error(f"--learning-rate-end must be a finite number >= 0, got {args.learning_rate_end}")
+    if args.desired_kl is not None:
+        if not (args.desired_kl > 0 and math.isfinite(args.desired_kl)):
+            parser.error(f"--desired-kl must be a finite number > 0, got {args.desired_kl}")
+        if args.learning_rate_end is not None:
+            parser.error(f"--desired-kl {args.desired_kl} and --learning-rate-end {args.learning_rate_end} are two "
+                         "step-size schedules; choose one")
     for name in ("gamma", "gae_lambda"):
         value = getattr(args, name)
         if value is not None and not 0 <= value <= 1:
@@ -146,7 +155,7 @@ def build_spec(args: argparse.Namespace):
     from match_jax.training import RunSpec
 
     overrides = {"method": args.method}
-    for name in ("total_steps", "num_envs", "learning_rate", "learning_rate_end", "gamma", "gae_lambda",
+    for name in ("total_steps", "num_envs", "learning_rate", "learning_rate_end", "desired_kl", "gamma", "gae_lambda",
                  "rollout_steps", "epochs", "minibatches", "iterations_per_chunk"):
         if getattr(args, name) is not None:
             overrides[name] = getattr(args, name)

@@ -70,6 +70,11 @@ class PPOConfig:
     # None: a constant step size; else Adam's step size decays linearly from learning_rate to this value
     # over the run's budget (num_iterations x optimizer_steps_per_iteration updates)
     learning_rate_end: float | None = None
+    # None: no adaptation; else the KL-adaptive step size (rsl_rl's 'adaptive' schedule): before each minibatch
+    # step, the step size is divided by KL_LR_FACTOR when that minibatch's approximate KL to the rollout policy
+    # is above 2 x desired_kl, multiplied by it when below desired_kl / 2, and kept in [KL_LR_MIN, KL_LR_MAX];
+    # it starts at learning_rate, is per seed, shared by actor and critic, and lives in the optimizer state
+    desired_kl: float | None = None
     adam_b1: float = 0.9
     adam_b2: float = 0.999
     adam_eps: float = 1e-5
@@ -105,6 +110,12 @@ class PPOConfig:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
         if self.learning_rate_end is not None and not 0 <= self.learning_rate_end < float("inf"):
             raise ValueError(f"learning_rate_end must be a finite number >= 0 or None, got {self.learning_rate_end!r}")
+        if self.desired_kl is not None:
+            if not 0 < self.desired_kl < float("inf"):
+                raise ValueError(f"desired_kl must be a finite number > 0 or None, got {self.desired_kl!r}")
+            if self.learning_rate_end is not None:
+                raise ValueError(f"desired_kl ({self.desired_kl!r}) and learning_rate_end ({self.learning_rate_end!r}) "
+                                 "are two step-size schedules; choose one")
         for name in ("ssl_coef", "value_coef", "entropy_coef"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
@@ -277,12 +288,33 @@ def learning_rate_schedule(config: PPOConfig) -> float | optax.Schedule:
                                  config.num_iterations * config.optimizer_steps_per_iteration)
 
 
+# The KL-adaptive step size (`PPOConfig.desired_kl`): factor per minibatch step and bounds (rsl_rl's values).
+KL_LR_FACTOR = 1.5
+KL_LR_MIN = 1e-5
+KL_LR_MAX = 1e-2
+
+
+def kl_adapted_learning_rate(learning_rate: jax.Array, approx_kl: jax.Array, desired_kl: float) -> jax.Array:
+    """The next KL-adaptive step size: / KL_LR_FACTOR above 2 x desired_kl, x KL_LR_FACTOR below half of it,
+    unchanged between, clipped to [KL_LR_MIN, KL_LR_MAX]."""
+    scaled = jnp.where(approx_kl > 2.0 * desired_kl, learning_rate / KL_LR_FACTOR,
+                       jnp.where(approx_kl < 0.5 * desired_kl, learning_rate * KL_LR_FACTOR, learning_rate))
+    return jnp.clip(scaled, KL_LR_MIN, KL_LR_MAX)
+
+
+def optimizer_learning_rate(opt_state) -> jax.Array:
+    """The step size held in the optimizer state of a KL-adaptive config (actor and critic share it)."""
+    return optax.tree_utils.tree_get_all_with_path(opt_state, "learning_rate")[0][1]
+
+
 def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
-    """Adam with global-norm clipping, one per network (actor and critic clipped separately)."""
+    """Adam with global-norm clipping, one per network (actor and critic clipped separately). With desired_kl
+    the step size is a hyperparameter in the optimizer state (`optax.inject_hyperparams`), set per minibatch."""
     def one():
+        adam = optax.inject_hyperparams(optax.adam) if config.desired_kl is not None else optax.adam
         return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
-                           optax.adam(learning_rate_schedule(config), b1=config.adam_b1, b2=config.adam_b2,
-                                      eps=config.adam_eps))
+                           adam(learning_rate_schedule(config), b1=config.adam_b1, b2=config.adam_b2,
+                                eps=config.adam_eps))
     return optax.multi_transform({"actor": one(), "critic": one()}, {"actor": "actor", "critic": "critic"})
 
 
@@ -461,6 +493,11 @@ def update(learner: Learner, params: dict, opt_state, traj: Transition, adv: jax
     def minibatch(carry, mb):
         params, opt_state = carry
         grads, aux = jax.grad(loss_fn, has_aux=True)(params, *mb)
+        if config.desired_kl is not None:  # this step's size from its KL (the loss's, at the pre-step params)
+            step_size = kl_adapted_learning_rate(optimizer_learning_rate(opt_state), aux[0]["approx_kl"],
+                                                 config.desired_kl)
+            opt_state = optax.tree_utils.tree_set(opt_state, learning_rate=step_size)
+            aux = ({**aux[0], "learning_rate": step_size}, aux[1])
         return apply_grads(params, opt_state, grads), aux
 
     def epoch(carry, epoch_key):
@@ -505,9 +542,10 @@ def iteration(learner: Learner, ts: TrainState) -> tuple[TrainState, dict]:
         contact_fraction=counts["contact_steps"] / config.steps_per_iteration,
         action_std=jnp.exp(params["actor"]["params"]["log_std"]).mean(-1),
     )
-    step_size = learning_rate_schedule(config)  # this iteration's first Adam step size
-    metrics["learning_rate"] = (step_size(ts.iteration * config.optimizer_steps_per_iteration) if callable(step_size)
-                                else jnp.full(ts.iteration.shape, step_size))
+    if config.desired_kl is None:  # this iteration's first Adam step size (KL-adaptive: the mean of its PPO steps')
+        step_size = learning_rate_schedule(config)
+        metrics["learning_rate"] = (step_size(ts.iteration * config.optimizer_steps_per_iteration)
+                                    if callable(step_size) else jnp.full(ts.iteration.shape, step_size))
     env_steps = ts.env_steps + config.steps_per_iteration
     metrics.update(iteration=ts.iteration + 1, env_steps=env_steps)
     ts = TrainState(params, opt_state, out.policy_stats, out.critic_stats, out.env_state, out.episode_success,

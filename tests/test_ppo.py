@@ -11,7 +11,8 @@ import pytest
 
 from match_jax.envs.point_mass import PointMassEnv
 from match_jax.networks import NetworkConfig
-from match_jax.ppo import PPOConfig, generalized_advantages, learning_rate_schedule, make_optimizer, make_trainer
+from match_jax.ppo import (KL_LR_MAX, KL_LR_MIN, PPOConfig, generalized_advantages, kl_adapted_learning_rate,
+                           learning_rate_schedule, make_optimizer, make_trainer, optimizer_learning_rate)
 
 
 def test_ppo_solves_point_mass_reaching():
@@ -63,6 +64,40 @@ def test_learning_rate_decays_linearly_over_the_budget():
                                np.repeat([[1e-3], [7.5e-4], [5e-4], [2.5e-4]], 2, axis=1), rtol=1e-6)
 
 
+def test_kl_adapted_learning_rate_rule():
+    """/ 1.5 above 2 x desired_kl, x 1.5 below half of it, unchanged between, clipped to [1e-5, 1e-2]."""
+    kl = jnp.array([0.05, 0.021, 0.02, 0.01, 0.005, 0.0049, 0.0, 0.05, 0.0])
+    lr = jnp.array([3e-4, 3e-4, 3e-4, 3e-4, 3e-4, 3e-4, 3e-4, 1.2e-5, 9e-3])
+    np.testing.assert_allclose(kl_adapted_learning_rate(lr, kl, 0.01),
+                               [2e-4, 2e-4, 3e-4, 3e-4, 3e-4, 4.5e-4, 4.5e-4, KL_LR_MIN, KL_LR_MAX], rtol=1e-6)
+
+
+@pytest.mark.parametrize("desired_kl,expected", [
+    # every step far below half the target: x 1.5 per step (4 per iteration) up to the 1e-2 ceiling
+    (1e9, [np.mean([1e-3 * 1.5 ** k for k in range(1, 5)]), np.mean([1.5e-3 * 1.5 ** 4, 1e-2, 1e-2, 1e-2]), 1e-2]),
+    # above twice the target on every step but each iteration's first (the rollout policy itself: KL 0)
+    # (x 1.5, then / 1.5 three times: / 1.5 ** 2 per iteration)
+    (1e-12, [np.mean([1e-3 * 1.5 ** -k for k in range(-1, 3)]), np.mean([1e-3 * 1.5 ** -k for k in range(1, 5)]),
+             np.mean([1e-3 * 1.5 ** -k for k in range(3, 7)])]),
+])
+def test_kl_adaptive_step_size_is_set_per_minibatch(desired_kl, expected):
+    """desired_kl: the logged learning_rate is the mean step size of the iteration's 4 Adam steps, each set
+    from its minibatch's KL before the step, per seed; the optimizer state carries the last one over."""
+    cfg = PPOConfig(method="pose", num_envs=4, rollout_steps=8, iterations_per_chunk=3, epochs=2, minibatches=2,
+                    learning_rate=1e-3, desired_kl=desired_kl, total_steps=3 * 4 * 8,
+                    network=NetworkConfig(8, 1, 8, 1))
+    trainer = make_trainer(cfg, PointMassEnv())
+    state = jax.jit(trainer.init)(jax.random.split(jax.random.PRNGKey(0), 2))
+    np.testing.assert_allclose(optimizer_learning_rate(state.opt_state), [1e-3, 1e-3])
+    state, metrics = jax.jit(trainer.train_chunk)(state)
+    np.testing.assert_allclose(np.asarray(metrics["learning_rate"]), np.repeat(np.array(expected)[:, None], 2, 1),
+                               rtol=1e-5)
+    if desired_kl > 1:
+        np.testing.assert_allclose(optimizer_learning_rate(state.opt_state), [KL_LR_MAX] * 2, rtol=1e-6)
+    else:
+        np.testing.assert_allclose(optimizer_learning_rate(state.opt_state), [1e-3 / 1.5 ** 6] * 2, rtol=1e-5)
+
+
 def _gae_numpy(reward, value, final_value, last_value, done, truncation, gamma, lam):
     T, B = reward.shape
     adv = np.zeros((T, B))
@@ -111,10 +146,16 @@ def test_gae_bootstraps_time_outs_and_not_breaks():
     ("ssl_samples", "free", "ssl_samples must be 'all' or 'contact', got 'free'"),
     ("learning_rate_end", -1e-4, "learning_rate_end must be a finite number >= 0 or None, got -0.0001"),
     ("learning_rate_end", float("inf"), "learning_rate_end must be a finite number >= 0 or None, got inf"),
+    ("desired_kl", 0.0, "desired_kl must be a finite number > 0 or None, got 0.0"),
 ])
 def test_bad_config_is_named(field, value, match):
     with pytest.raises(ValueError, match=match):
         PPOConfig(**{field: value})
+
+
+def test_two_step_size_schedules_are_refused():
+    with pytest.raises(ValueError, match=r"desired_kl \(0.01\) and learning_rate_end \(0.0\) are two step-size"):
+        PPOConfig(desired_kl=0.01, learning_rate_end=0.0)
 
 
 def test_ssl_beta_defaults_per_method_and_ratio():

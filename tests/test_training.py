@@ -380,12 +380,16 @@ def test_train_cli_network_flags(tmp_path, capsys):
     discounted = train_cli.build_spec(train_cli.parse_args(
         ["--method", "match", "--gamma", "0.99", "--gae-lambda", "0.9", "--out", str(tmp_path)])).ppo
     assert (discounted.gamma, discounted.gae_lambda, discounted.network) == (0.99, 0.9, preset)
+    adaptive = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "match", "--learning-rate", "1e-3", "--desired-kl", "0.01", "--out", str(tmp_path)])).ppo
+    assert (adaptive.learning_rate, adaptive.desired_kl, adaptive.learning_rate_end) == (1e-3, 0.01, None)
     for flag, value, message in (("--critic-hidden", "0", "--critic-hidden must be a positive integer, got 0"),
                                  ("--actor-blocks", "-1", "--actor-blocks must be an integer >= 0, got -1"),
                                  ("--initial-p-position", "1", "--initial-p-position must be in (0, 1), got 1.0"),
                                  ("--initial-force-z", "5", "--initial-force-z must be in [-20, 0] N"),
                                  ("--gamma", "1.5", "--gamma must be in [0, 1], got 1.5"),
-                                 ("--gae-lambda", "-0.1", "--gae-lambda must be in [0, 1], got -0.1")):
+                                 ("--gae-lambda", "-0.1", "--gae-lambda must be in [0, 1], got -0.1"),
+                                 ("--desired-kl", "nan", "--desired-kl must be a finite number > 0, got nan")):
         with pytest.raises(SystemExit):
             train_cli.parse_args(["--method", "match", flag, value, "--out", str(tmp_path)])
         assert message in capsys.readouterr().err.strip().splitlines()[-1]
