@@ -34,8 +34,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--noise-mm", type=float, default=None,
                         help="hole-position observation noise in mm (sd for gaussian, half-width for uniform); "
                              "default: a run's training noise, 1 mm for baselines")
-    parser.add_argument("--noise-type", choices=["gaussian", "uniform"], default=None,
-                        help="default gaussian; uniform with --noise-sweep (the paper's sweep)")
+    parser.add_argument("--noise-type", choices=["gaussian", "uniform", "shell"], default=None,
+                        help="gaussian (default), uniform per axis, or shell: a random 3-D direction times a "
+                             "radius U[previous edge of 0,1,2.5,5,7.5 mm, level] (the authors' sweep, the default "
+                             "with --noise-sweep)")
     parser.add_argument("--noise-sweep", type=str, default=None, help="comma-separated noise levels in mm")
     parser.add_argument("--checkpoint", choices=["best", "latest"], default="best", help="which policy of a run")
     parser.add_argument("--break-force", type=float, default=None,
@@ -95,7 +97,7 @@ def evaluate_run_dir(args) -> dict:
     break_force = math.inf if args.unbreakable else args.break_force
     levels = args.noise_levels if args.noise_sweep is not None else (
         None if args.noise_mm is None else [args.noise_mm])
-    noise_type = args.noise_type or ("uniform" if args.noise_sweep is not None else None)
+    noise_type = args.noise_type or ("shell" if args.noise_sweep is not None else None)
     results = evaluate_run_grid(args.run_dir, args.episodes, levels, noise_type,
                                 None if break_force is None else [break_force], args.checkpoint, 1000 + args.seed)
     for result in results:

@@ -28,6 +28,19 @@ NETWORK_FIELDS = ("actor_hidden", "actor_blocks", "critic_hidden", "critic_block
 RESUME_FLAGS = ("resume", "out", "total_steps", "max_chunks", "time_budget_min", "no_progress")  # apply with --resume
 
 
+TASKS = ("authors", "earlier")  # match_jax.envs.tasks.TASKS
+
+
+def _three_floats(text: str) -> tuple[float, float, float]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z, got {text!r}") from None
+    if len(values) != 3:
+        raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z, got {text!r}")
+    return values
+
+
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--method", choices=METHODS, help="pose | vices | hybrid (Hybrid-Basic) | match")
@@ -75,17 +88,31 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10; inf = unbreakable)")
-    parser.add_argument("--break-sampling", choices=["peak", "policy_step"], default="peak",
-                        help="break on the peak force over every physics step (default) or on the force read once "
-                             "per policy step (the authors' code)")
+    parser.add_argument("--task", choices=list(TASKS), default="authors",
+                        help="task protocol: 'authors' (default: the authors' task, docs/protocol.md) or 'earlier' "
+                             "(this project's earlier variant: rigid peg, peg contact force, peak break, damped "
+                             "force law, gaussian spawn); the flags below override single settings")
+    parser.add_argument("--break-sampling", choices=["peak", "policy_step"], default=None,
+                        help="break on the force signal read once per policy step (the authors', default) or on "
+                             "the peg's peak contact force over every physics step")
     parser.add_argument("--controller", choices=["paper", "factory"], default="factory",
                         help="task-space law: IsaacLab Factory's u = J^T F as the authors' code runs it (default; "
                              "k_p = 100 N/m at the end effector) or the paper's equation u = J^T M_x F "
                              "(k_p x task inertia: 240-630 N/m at the spawn pose)")
-    parser.add_argument("--force-law", choices=["damped", "literal"], default="damped",
-                        help="force-controlled axes: k_f (f_d - f) + f_d - k_vf xdot (default) or the literal "
-                             "k_f (f_d - f), no feed-forward and no damping (the authors' code; the paper's equation "
-                             "without its M_x)")
+    parser.add_argument("--force-law", choices=["damped", "literal"], default=None,
+                        help="force-controlled axes: the literal k_f (f_d - f), no feed-forward and no damping (the "
+                             "authors', default) or k_f (f_d - f) + f_d - k_vf xdot")
+    parser.add_argument("--force-sensor", choices=["wrist", "peg_contact"], default=None,
+                        help="force signal of the law, the 15 Hz break and the observation: the wrist F/T sensor "
+                             "(default) or the sum of the peg's contact forces (no torque observed)")
+    parser.add_argument("--force-frame", choices=["world", "hand"], default=None,
+                        help="frame of the force signal: world (default, the law's frame) or the hand frame fed "
+                             "unrotated to the law and the policy (the authors' code)")
+    parser.add_argument("--peg-offset-mm", type=_three_floats, default=None, metavar="X,Y,Z",
+                        help="half-widths of the uniform peg offset in the hand, hand frame, mm (default 3,0,3; "
+                             "0,0,0 = rigid)")
+    parser.add_argument("--spawn-noise", choices=["uniform", "gaussian"], default=None,
+                        help="hand spawn noise +-(2, 2, 1) cm uniform (default) or gaussian with those sds")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run directory")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks (resumable)")
@@ -152,6 +179,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 def build_spec(args: argparse.Namespace):
     from match_jax.envs import FPiHConfig
     from match_jax.presets import get_preset
+    from match_jax.envs.tasks import task_config
+    from match_jax.randomization import ModelRandomization
     from match_jax.training import RunSpec
 
     overrides = {"method": args.method}
@@ -178,11 +207,19 @@ def build_spec(args: argparse.Namespace):
         env = dataclasses.replace(env, hole_obs_noise=args.hole_noise_mm / 1000.0)
     if args.break_force is not None:
         env = dataclasses.replace(env, break_force=args.break_force)
-    env = dataclasses.replace(env, break_sampling=args.break_sampling)
-    controller = dataclasses.replace(env.controller, use_task_inertia=args.controller == "paper")
-    if args.force_law == "literal":
-        controller = controller.with_force_law("literal")
-    env = dataclasses.replace(env, controller=controller)
+    overrides = {name: value for name, value in (
+        ("break_sampling", args.break_sampling), ("force_sensor", args.force_sensor),
+        ("force_frame", args.force_frame), ("spawn_noise_type", args.spawn_noise)) if value is not None}
+    if args.peg_offset_mm is not None:
+        overrides["randomization"] = ModelRandomization(peg_offset_range=tuple(v / 1000.0 for v in args.peg_offset_mm))
+    for name in ("hole_obs_noise", "break_force"):
+        overrides[name] = getattr(env, name)
+    try:
+        env = task_config(args.task, ppo.control, args.force_law, **overrides)
+    except ValueError as err:
+        raise SystemExit(f"train.py: error: {err}") from None
+    env = dataclasses.replace(env, controller=dataclasses.replace(env.controller,
+                                                                  use_task_inertia=args.controller == "paper"))
     return RunSpec(ppo=ppo, env=env, num_seeds=args.seeds, seed=args.seed, preset=args.preset)
 
 

@@ -33,6 +33,28 @@ from match_jax.training import batch_mesh, load_policies, load_spec, shard_batch
 
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
+# The authors' noise sweep: per episode a uniformly random 3-D direction times a radius drawn from
+# U[previous edge, level] (mm): shells 0-1, 1-2.5, 2.5-5, 5-7.5.
+SHELL_EDGES_MM = (0.0, 1.0, 2.5, 5.0, 7.5)
+NOISE_KINDS = ("gaussian", "uniform", "shell")
+
+
+def shell_inner_mm(level_mm: float) -> float:
+    """Inner radius (mm) of the noise shell whose outer radius is `level_mm`: the largest edge of
+    SHELL_EDGES_MM below it (0 for levels up to 1 mm)."""
+    return max([edge for edge in SHELL_EDGES_MM if edge < level_mm], default=0.0)
+
+
+def shell_offsets(direction_draw: jax.Array, radius_draw: jax.Array, inner_m, outer_m) -> jax.Array:
+    """Offsets (m, (..., 3)) on a spherical shell: direction = the standard-normal `direction_draw`
+    (..., 3) normalised (uniform on the sphere), radius = inner + u (outer - inner) with u the U(0, 1)
+    `radius_draw` (...,) (uniform in radius, as the authors sample it)."""
+    norm = jnp.linalg.norm(direction_draw, axis=-1, keepdims=True)
+    direction = direction_draw / jnp.maximum(norm, 1e-12)
+    radius = inner_m + radius_draw * (outer_m - inner_m)
+    return direction * radius[..., None]
+
+
 # Per-step info recorded during a rollout: name -> key in State.info.
 RECORDED = ("success", "engaged", "broken", "in_contact", "mean_force", "max_force", "phase",
             "position_axes", "contact_axes", "truncation", "ee_force")
@@ -118,6 +140,13 @@ def episode_metrics(traj: dict, policy_dt: float) -> dict[str, np.ndarray]:
       step when |F| along that world axis exceeded the env's contact threshold (1 N) at the start of the
       step (the contact the action was chosen in, the selection loss's label), force-selected when the
       step ran that axis under force control.
+    The authors' metrics (their evaluation code), as per-episode sums that `summarize` pools:
+    authors_time_to_success_s: first success step (0-based) * policy_dt; authors_force_sum_n /
+      authors_contact_steps: |end-of-step force signal| summed over the steps ending with some axis of the
+      peg in contact (|F_i| > 1 N, true contact), and their count (the break step included);
+      authors_axis_force_steps / authors_axis_force_contact_steps, authors_axis_position_steps /
+      authors_axis_position_free_steps: (B, 3) per-axis counts of force- (position-) selected steps and of
+      those ending in contact (in free space), behind their force- and position-control accuracies.
     """
     traj = {k: np.asarray(v) for k, v in traj.items()}
     alive = 1.0 - traj["done_before"]  # (T, B)
@@ -144,6 +173,9 @@ def episode_metrics(traj: dict, policy_dt: float) -> dict[str, np.ndarray]:
     axis_contact = (traj["contact_axes_before"] > 0) & axis_alive  # (T, B, 3)
     axis_free = (traj["contact_axes_before"] <= 0) & axis_alive
     axis_force = traj["position_axes"] < 0.5
+    end_contact_axes = traj["contact_axes"] > 0  # (T, B, 3), at the end of the step
+    end_contact = end_contact_axes.any(axis=-1) & (alive > 0)
+    force_norm = np.linalg.norm(traj["ee_force"], axis=-1)
     return {
         "success": success.astype(np.float64),
         "broken": broken.astype(np.float64),
@@ -155,6 +187,35 @@ def episode_metrics(traj: dict, policy_dt: float) -> dict[str, np.ndarray]:
         "axis_force_in_contact_steps": (axis_contact & axis_force).sum(axis=0),
         "axis_free_steps": axis_free.sum(axis=0),
         "axis_force_in_free_steps": (axis_free & axis_force).sum(axis=0),
+        "authors_time_to_success_s": np.where(success, first_success * policy_dt, np.nan),
+        "authors_force_sum_n": (force_norm * end_contact).sum(axis=0),
+        "authors_contact_steps": end_contact.sum(axis=0),
+        "authors_axis_force_steps": (axis_force & axis_alive).sum(axis=0),
+        "authors_axis_force_contact_steps": (axis_force & end_contact_axes & axis_alive).sum(axis=0),
+        "authors_axis_position_steps": (~axis_force & axis_alive).sum(axis=0),
+        "authors_axis_position_free_steps": (~axis_force & ~end_contact_axes & axis_alive).sum(axis=0),
+    }
+
+
+def authors_rates(metrics: dict[str, np.ndarray]) -> dict[str, float]:
+    """The authors' pooled metrics over all episodes of `metrics` (`episode_metrics`): mean force (N) over
+    every step that ends in contact; force-control accuracy = force-selected axis-steps ending in contact /
+    force-selected axis-steps, position-control accuracy = position-selected axis-steps ending in free
+    space / position-selected axis-steps, each per axis then averaged over x, y, z. NaN where undefined."""
+    def ratio(num, den):
+        num, den = float(np.sum(num)), float(np.sum(den))
+        return num / den if den > 0 else float("nan")
+
+    def axis_mean(num_key, den_key):
+        num = np.asarray(metrics[num_key], np.float64).sum(axis=0)
+        den = np.asarray(metrics[den_key], np.float64).sum(axis=0)
+        rates = [n / d for n, d in zip(num, den) if d > 0]
+        return float(np.mean(rates)) if rates else float("nan")
+
+    return {
+        "authors_mean_force_n": ratio(metrics["authors_force_sum_n"], metrics["authors_contact_steps"]),
+        "authors_force_accuracy": axis_mean("authors_axis_force_contact_steps", "authors_axis_force_steps"),
+        "authors_position_accuracy": axis_mean("authors_axis_position_free_steps", "authors_axis_position_steps"),
     }
 
 
@@ -188,6 +249,8 @@ def summarize(metrics: dict[str, np.ndarray]) -> dict[str, float]:
         "force_selected_contact": nanmean(metrics["force_selected_contact"]),
         "force_selected_free": nanmean(metrics["force_selected_free"]),
         **axis_selection_rates(metrics),
+        "authors_time_to_success_s": nanmean(metrics["authors_time_to_success_s"]),
+        **authors_rates(metrics),
     }
 
 
@@ -201,9 +264,9 @@ def mean_and_standard_error(values) -> tuple[float, float]:
 
 
 SELECTION_COLUMNS = ("force_selected_contact", "force_selected_free", "force_selected_contact_per_axis",
-                     "force_selected_free_per_axis")
+                     "force_selected_free_per_axis", "authors_force_accuracy", "authors_position_accuracy")
 COLUMNS = ("success_rate", "break_rate", "mean_time_to_success_s", "mean_force_n", *SELECTION_COLUMNS,
-           "break_rate_peak", "break_rate_policy_step")
+           "break_rate_peak", "break_rate_policy_step", "authors_time_to_success_s", "authors_mean_force_n")
 AXIS_COLUMNS = tuple(f"force_selected_{where}_{axis}" for where in ("contact", "free") for axis in "xyz")
 
 
@@ -263,8 +326,8 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
         levels = [spec.env.hole_obs_noise * 1000.0] if noise_levels_mm is None else [float(x) for x in noise_levels_mm]
         noise_specs = [(level, noise_type or spec.env.hole_obs_noise_type) for level in levels]
     levels, types = [float(level) for level, _ in noise_specs], [kind for _, kind in noise_specs]
-    if any(kind not in ("gaussian", "uniform") for kind in types):
-        raise ValueError(f"noise types must be 'gaussian' or 'uniform', got {types}")
+    if any(kind not in NOISE_KINDS for kind in types):
+        raise ValueError(f"noise types must be one of {NOISE_KINDS}, got {types}")
     break_forces = [spec.env.break_force] if break_forces is None else [float(f) for f in break_forces]
     if any(not f > 0 for f in break_forces) or any(not (x >= 0 and math.isfinite(x)) for x in levels):
         raise ValueError(f"break forces must be > 0 and noise levels finite >= 0, got {break_forces}, {levels}")
@@ -280,6 +343,11 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     is_gauss = jnp.asarray([kind == "gaussian" for kind in types])[None, :, None, None]
     z = jnp.where(is_gauss, z_gauss, z_uniform)
     offsets = jnp.asarray(levels)[None, :, None, None] / 1000.0 * z  # (S, L, E, 3), m
+    is_shell = jnp.asarray([kind == "shell" for kind in types])[None, :, None, None]
+    inner = jnp.asarray([shell_inner_mm(level) for level in levels])[None, :, None] / 1000.0
+    u_radius = jax.random.uniform(jax.random.fold_in(k_noise, 1), shape[:-1])  # the same draw at every level
+    shells = shell_offsets(z_gauss, u_radius, inner, jnp.asarray(levels)[None, :, None] / 1000.0)
+    offsets = jnp.where(is_shell, shells, offsets)
     mesh = batch_mesh(episodes)  # episodes split over the CPU devices (one per core), if they divide evenly
     # One (seed, level) per call, `episodes` envs: the control law's batched LAPACK LU splits a large
     # batch over XLA's CPU thread pool, and on 2 cores a 3-seed x 6-level x 200-episode call deadlocked
@@ -376,8 +444,9 @@ def format_result(result: dict) -> str:
             f"{result['episodes_per_seed']} episodes x {result['seeds']} seeds, hole noise {result['noise_mm']:g} mm "
             f"({result['noise_type']}), break force {result['break_force_n'] or 'none'}")
     names = ("success %", "break %", "time (s)", "force (N)", "F-sel contact %", "F-sel free %",
-             "F-sel/axis cont %", "F-sel/axis free %", "break peak %", "break 15Hz %")
-    scale = (100, 100, 1, 1, 100, 100, 100, 100, 100, 100)
+             "F-sel/axis cont %", "F-sel/axis free %", "auth F-acc %", "auth P-acc %", "break peak %",
+             "break 15Hz %", "auth time (s)", "auth force (N)")
+    scale = (100, 100, 1, 1, 100, 100, 100, 100, 100, 100, 100, 100, 1, 1)
     lines = [head, "  seed    " + "".join(f"{n:>19}" for n in names)]
     for s in result["per_seed"]:
         cells = "".join(f"{_fmt(s[c] * k):>19}" for c, k in zip(COLUMNS, scale))
@@ -407,19 +476,31 @@ def baseline_env(name: str, noise_m: float, noise_type: str = "gaussian", break_
 def evaluate_baseline(name: str, episodes: int, noise_m: float, noise_type: str = "gaussian",
                       break_force: float = 10.0, seed: int = 0, batch: int = 0) -> dict:
     """Run `episodes` episodes of a scripted baseline (`match_jax.baselines`); the `summarize` dict and settings.
-    `batch` > 0 runs the episodes in compiled batches of that size (0: all at once)."""
-    env = baseline_env(name, noise_m, noise_type, break_force)
+    noise_type 'shell': the hole offset lies on the shell out to `noise_m` (`shell_offsets`). `batch` > 0
+    runs the episodes in compiled batches of that size (0: all at once)."""
+    if noise_type not in NOISE_KINDS:
+        raise ValueError(f"noise_type must be one of {NOISE_KINDS}, got {noise_type!r}")
+    shell = noise_type == "shell"
+    env = baseline_env(name, 0.0 if shell else noise_m, "gaussian" if shell else noise_type, break_force)
     policy, policy_state = baselines.make_baseline(name, env)
     rollout = jax.jit(make_rollout(env, policy))
     batch = batch or episodes
     keys = jax.random.split(jax.random.PRNGKey(seed), episodes)
+    offsets = None
+    if shell:
+        k_dir, k_radius = jax.random.split(jax.random.PRNGKey(seed + 7919))
+        offsets = np.asarray(shell_offsets(jax.random.normal(k_dir, (episodes, 3)), jax.random.uniform(k_radius, (episodes,)),
+                                           shell_inner_mm(noise_m * 1000.0) / 1000.0, noise_m))
     per_episode = []
     for start in range(0, episodes, batch):
         chunk = keys[start:start + batch]
+        chunk_offsets = None if offsets is None else offsets[start:start + batch]
         if len(chunk) < batch:  # pad to the compiled batch size, drop the padding afterwards
             chunk = np.concatenate([chunk, keys[: batch - len(chunk)]])
+            if offsets is not None:
+                chunk_offsets = np.concatenate([chunk_offsets, offsets[: batch - len(chunk_offsets)]])
         states = jax.tree_util.tree_map(lambda x: np.broadcast_to(x, (batch,) + x.shape), policy_state)
-        traj = rollout(chunk, states)
+        traj = rollout(chunk, states) if offsets is None else rollout(chunk, states, chunk_offsets)
         metrics = episode_metrics(traj, env.dt)
         n = min(batch, episodes - start)
         per_episode.append({k: v[:n] for k, v in metrics.items()})

@@ -33,7 +33,7 @@ import match_jax  # noqa: F401  (fast XLA CPU flag)
 import numpy as np
 
 from match_jax import checkpoints, claims, compile_cache, plots
-from match_jax.envs import FPiHConfig
+from match_jax.envs.tasks import TASKS, task_config
 from match_jax.presets import get_preset
 from match_jax.evaluation import evaluate_run_grid
 from match_jax.checkpoints import CheckpointError
@@ -47,22 +47,22 @@ class SuiteRun(NamedTuple):
     ssl: bool  # the selection loss on (hybrid methods)
     noise_mm: float  # training hole-observation noise (gaussian std, mm)
     break_force: float  # training break force (N); inf = unbreakable
-    force_law: str  # 'damped' (default) or 'literal' (the authors': `ControllerConfig.with_force_law`)
+    force_law: str | None  # None: the task's; 'damped' or 'literal' (`ControllerConfig.with_force_law`)
 
 
 SUITE = {
-    "pose": SuiteRun("Pose", "pose", True, 1.0, 10.0, "damped"),
-    "vices": SuiteRun("VICES", "vices", True, 1.0, 10.0, "damped"),
-    "hybrid": SuiteRun("Hybrid-Basic", "hybrid", True, 1.0, 10.0, "damped"),
-    "match": SuiteRun("MATCH", "match", True, 1.0, 10.0, "damped"),
+    "pose": SuiteRun("Pose", "pose", True, 1.0, 10.0, None),
+    "vices": SuiteRun("VICES", "vices", True, 1.0, 10.0, None),
+    "hybrid": SuiteRun("Hybrid-Basic", "hybrid", True, 1.0, 10.0, None),
+    "match": SuiteRun("MATCH", "match", True, 1.0, 10.0, None),
     "match_literal": SuiteRun("MATCH (authors' force law)", "match", True, 1.0, 10.0, "literal"),
-    "match_nossl": SuiteRun("MATCH (no SSL)", "match", False, 1.0, 10.0, "damped"),
-    "hybrid_nossl": SuiteRun("Hybrid-Basic (no SSL)", "hybrid", False, 1.0, 10.0, "damped"),
-    "pose_noise2.5": SuiteRun("Pose (trained at 2.5 mm)", "pose", True, 2.5, 10.0, "damped"),
-    "pose_unbreakable": SuiteRun("Pose (unbreakable)", "pose", True, 1.0, math.inf, "damped"),
-    "vices_unbreakable": SuiteRun("VICES (unbreakable)", "vices", True, 1.0, math.inf, "damped"),
-    "hybrid_unbreakable": SuiteRun("Hybrid-Basic (unbreakable)", "hybrid", True, 1.0, math.inf, "damped"),
-    "match_unbreakable": SuiteRun("MATCH (unbreakable)", "match", True, 1.0, math.inf, "damped"),
+    "match_nossl": SuiteRun("MATCH (no SSL)", "match", False, 1.0, 10.0, None),
+    "hybrid_nossl": SuiteRun("Hybrid-Basic (no SSL)", "hybrid", False, 1.0, 10.0, None),
+    "pose_noise2.5": SuiteRun("Pose (trained at 2.5 mm)", "pose", True, 2.5, 10.0, None),
+    "pose_unbreakable": SuiteRun("Pose (unbreakable)", "pose", True, 1.0, math.inf, None),
+    "vices_unbreakable": SuiteRun("VICES (unbreakable)", "vices", True, 1.0, math.inf, None),
+    "hybrid_unbreakable": SuiteRun("Hybrid-Basic (unbreakable)", "hybrid", True, 1.0, math.inf, None),
+    "match_unbreakable": SuiteRun("MATCH (unbreakable)", "match", True, 1.0, math.inf, None),
 }
 # Table 1 of the paper: success %, break % (mean over 5 seeds x 100 episodes).
 PAPER_TABLE1 = {"pose": (95.4, 1.6), "vices": (95.2, 1.4), "hybrid": (98.2, 0.4), "match": (97.0, 0.0),
@@ -80,6 +80,7 @@ def unbreakable(name: str) -> bool:
 class SuiteConfig:
     out: pathlib.Path
     preset: str = "cpu"
+    task: str = "authors"  # task protocol of every run (`match_jax.envs.tasks`)
     seeds: int = 3
     total_steps: int | None = None
     episodes: int = 100
@@ -107,9 +108,8 @@ def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
     if cfg.total_steps is not None:
         overrides["total_steps"] = cfg.total_steps
     ppo = get_preset(cfg.preset, **overrides)
-    env = FPiHConfig(control=ppo.control)
-    env = dataclasses.replace(env, hole_obs_noise=run.noise_mm / 1000.0, break_force=run.break_force,
-                              controller=env.controller.with_force_law(run.force_law))
+    env = task_config(cfg.task, ppo.control, run.force_law, hole_obs_noise=run.noise_mm / 1000.0,
+                      break_force=run.break_force)
     return RunSpec(ppo=ppo, env=env, num_seeds=cfg.seeds, preset=cfg.preset)
 
 
@@ -616,6 +616,8 @@ def parse_args(argv=None) -> SuiteConfig:
                                      allow_abbrev=False)
     parser.add_argument("--out", type=pathlib.Path, required=True)
     parser.add_argument("--preset", choices=["cpu", "paper", "tiny"], default="cpu")
+    parser.add_argument("--task", choices=sorted(TASKS), default="authors",
+                        help="task protocol of every run: the authors' (default) or this project's earlier variant")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--total-steps", type=int, default=None)
     parser.add_argument("--episodes", type=int, default=100, help="Table 1 episodes per seed (every setting runs max(--episodes, --sweep-episodes))")
@@ -655,6 +657,7 @@ def parse_args(argv=None) -> SuiteConfig:
     if args.train_only and args.export is not None:
         parser.error("--export needs the report: it does not go with --train-only")
     common = dict(out=args.out, export=args.export, only=only, selection_in_ratio=not args.selection_not_in_ratio,
+                  task=args.task,
                   time_budget_min=args.time_budget_min, skip_training=args.skip_training,
                   train_only=args.train_only, report_only=args.report_only)
     if args.smoke:

@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from match_jax import randomization
 from match_jax.controllers import ControlTarget
 from match_jax.sim import mjx
 
@@ -37,10 +38,11 @@ def static_compliance(env, force_n: float = 1.0, seconds: float = 5.0) -> np.nda
                            pos_stiffness=jnp.asarray(env.config.controller.pos_stiffness, jnp.float32),
                            posture=s0.info["posture"])
     control_steps = int(round(seconds / env.config.control_dt))
+    model = randomization.apply(env.mjx_model, s0.info["model"])
 
     def settle(force):
         d = d0.replace(qfrc_applied=jacp @ force)
-        d, _, _, _ = env.simulate(d, jnp.zeros(3), target, control_steps=control_steps)
+        d = env.simulate(d, jnp.zeros(3), target, control_steps=control_steps, model=model).data
         return d.site_xpos[ids.ee_site]
 
     forces = jnp.concatenate([jnp.zeros((1, 3)), force_n * jnp.eye(3)])
@@ -55,10 +57,12 @@ def press_down(env, cases, policy_steps: int = 45, approach_steps: int = 12) -> 
     the block top at the offset, then z force control at f_z while x, y hold the offset with stiffness
     k_xy (z stiffness: the config's), `policy_steps` in all. Use a quiet env (hole at its nominal pose).
     Returns the peg-tip trajectory relative to the hole bottom centre (policy rate, (cases, steps, 3)),
-    the last force reading and the max force over the physics steps of each policy step, and the block
-    top height above the hole bottom (m).
+    the last force reading ('forces': the env's force signal; 'contact_forces': the peg's contact force)
+    and the peg's max contact force over the physics steps of each policy step, and the block top height
+    above the hole bottom (m).
     """
     s0 = env.reset(jax.random.PRNGKey(0))
+    model = randomization.apply(env.mjx_model, s0.info["model"])
     hole = s0.info["hole_pos"]
     rot = s0.pipeline_state.site_xmat[env.ids.ee_site]
     hover = env.hole_depth + env.peg_tip_below_ee + 0.001
@@ -72,15 +76,17 @@ def press_down(env, cases, policy_steps: int = 45, approach_steps: int = 12) -> 
 
         def body(carry, i):
             d, f = carry
-            d, f, max_f, _ = jax.lax.cond(
-                i < approach_steps, lambda: env.simulate(d, f, target(jnp.ones(3))),
-                lambda: env.simulate(d, f, target(jnp.array([1.0, 1.0, 0.0]))))
-            return (d, f), (d.site_xpos[env.ids.peg_tip_site], f, max_f)
+            out = jax.lax.cond(
+                i < approach_steps, lambda: env.simulate(d, f, target(jnp.ones(3)), model=model),
+                lambda: env.simulate(d, f, target(jnp.array([1.0, 1.0, 0.0])), model=model))
+            return (out.data, out.force), (out.data.site_xpos[env.ids.peg_tip_site], out.force, out.max_force,
+                                           out.contact_force)
 
         _, out = jax.lax.scan(body, (s0.pipeline_state, jnp.zeros(3)), jnp.arange(policy_steps))
         return out
 
     args = [jnp.array(col, jnp.float32) for col in zip(*cases)]
-    tips, forces, max_forces = jax.jit(jax.vmap(run))(*args)
+    tips, forces, max_forces, contact_forces = jax.jit(jax.vmap(run))(*args)
     return {"cases": list(cases), "tips": np.asarray(tips - hole), "forces": np.asarray(forces),
-            "max_forces": np.asarray(max_forces), "block_top": env.hole_depth}
+            "max_forces": np.asarray(max_forces), "contact_forces": np.asarray(contact_forces),
+            "block_top": env.hole_depth}

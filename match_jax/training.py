@@ -35,6 +35,7 @@ from match_jax.controllers.action_spaces import ActionConfig
 from match_jax.controllers.osc import ControllerConfig
 from match_jax.envs import FPiHConfig
 from match_jax.networks import NetworkConfig
+from match_jax.randomization import ModelRandomization
 from match_jax.ppo import SSL_BETA, PPOConfig, RuntimeValues, Trainer, TrainState, make_env, make_trainer
 
 LOGGED = ("iteration", "env_steps", "success_rate", "break_rate", "episodes", "mean_reward", "contact_fraction",
@@ -74,12 +75,14 @@ class RunSpec:
 
 
 _NESTED = {"ppo": PPOConfig, "env": FPiHConfig, "network": NetworkConfig, "controller": ControllerConfig,
-           "actions": ActionConfig}
+           "actions": ActionConfig, "randomization": ModelRandomization}
 
 
 def _from_dict(cls, data: dict):
     kwargs = {}
     names = {f.name for f in dataclasses.fields(cls)}
+    # a config recorded before a field existed ran that field's legacy value, not today's default
+    data = {**getattr(cls, "LEGACY_DEFAULTS", {}), **data}
     for key, value in data.items():
         if key not in names:
             continue  # a field of an older version: ignore

@@ -77,7 +77,7 @@ def test_hybrid_law_force_axes(env):
     """Force-selected axes: u_task = [pose on position axes] + k_f (f_d - f) + f_d (default)."""
     data = _home(env)
     dyn = _c_dynamics(env, data, ee_force=np.array([0.0, 0.0, -2.0]))
-    config = ControllerConfig()
+    config = ControllerConfig().with_force_law("damped")  # feed-forward and damping terms
     target = _target(dyn, dyn.ee_pos + 0.01, axes=(1.0, 1.0, 0.0), force=(0.0, 0.0, -5.0))
     pose_only = _target(dyn, dyn.ee_pos + 0.01, axes=(1.0, 1.0, 0.0), force=(0.0, 0.0, 0.0))
     # the difference of two commands isolates the force term: J^T [0, 0, k_f (f_d - 0) + f_d, 0, 0, 0]
@@ -145,7 +145,7 @@ def test_free_space_force_selection_accelerates(env):
     start = _c_dynamics(env, _home(env)).ee_pos
     posture = np.array(env.home_qpos)
     steps = 20  # 0.17 s: the peg tip starts 4 cm above the table and must not reach it
-    paper_law = ControllerConfig(use_task_inertia=True, force_damping=(0.0, 0.0, 0.0))
+    paper_law = ControllerConfig(use_task_inertia=True, force_feedforward=True, force_damping=(0.0, 0.0, 0.0))
     pos_force, vel_force = _simulate(env, paper_law, lambda dyn: _target(
         dyn, start, axes=(1.0, 1.0, 0.0), force=(0.0, 0.0, -5.0), posture=posture), steps)
     _, vel_pos = _simulate(env, paper_law, lambda dyn: _target(
@@ -159,14 +159,14 @@ def test_free_space_force_selection_accelerates(env):
 
 @pytest.mark.parametrize("use_task_inertia", [False, True])
 def test_force_axis_damping_bounds_free_space_speed(env, use_task_inertia):
-    """Force-axis damping k_vf = 20 (N s/m on Factory's law, the default; 1/s through M_x on the paper's):
+    """Force-axis damping k_vf = 20 of the damped law (N s/m on Factory's law; 1/s through M_x on the paper's):
     free-space force selection still drives the arm, but toward a terminal speed instead of accelerating
     without bound. Closed loop along z: zddot = a_F - k zdot, so v(t) = (a_F / k) (1 - exp(-k t)); on the
     M_x law the task space is decoupled: a_F = (M_x^-1)_zz |F|, k = k_vf; on Factory's law the held x, y
     and rotation leave z the inertia (M_x)_zz: a_F = |F| / (M_x)_zz, k = k_vf / (M_x)_zz."""
     start_dyn = _c_dynamics(env, _home(env))
     posture = np.array(env.home_qpos)
-    config = ControllerConfig(use_task_inertia=use_task_inertia)
+    config = ControllerConfig(use_task_inertia=use_task_inertia).with_force_law("damped")
     assert config.force_damping[2] == 20.0
     force = -5.0 * (1.0 + config.force_gain)  # task force on the axis in free space (feedforward + P)
     mx_inv = start_dyn.jacobian @ np.linalg.solve(start_dyn.mass_matrix, start_dyn.jacobian.T)
@@ -203,8 +203,10 @@ def test_action_config_force_z_and_its_inverse():
 
 
 def test_with_force_law_switches_feedforward_and_damping_only():
-    literal = ControllerConfig(pos_stiffness=(50.0, 50.0, 50.0)).with_force_law("literal")
+    damped = ControllerConfig(pos_stiffness=(50.0, 50.0, 50.0)).with_force_law("damped")
+    assert damped.force_feedforward and damped.force_damping == (20.0, 20.0, 20.0)
+    literal = damped.with_force_law("literal")
     assert not literal.force_feedforward and literal.force_damping == (0.0, 0.0, 0.0)
-    assert literal.with_force_law("damped") == ControllerConfig(pos_stiffness=(50.0, 50.0, 50.0))
+    assert literal == ControllerConfig(pos_stiffness=(50.0, 50.0, 50.0))  # the default: the authors' law
     with pytest.raises(ValueError, match="'Literal'"):
         ControllerConfig().with_force_law("Literal")

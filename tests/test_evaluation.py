@@ -12,7 +12,8 @@ def _traj(B):
     return {
         "success": np.zeros((T, B)), "broken": np.zeros((T, B)), "in_contact": np.zeros((T, B)),
         "mean_force": np.zeros((T, B)), "position_axes": np.ones((T, B, 3)), "done_before": np.zeros((T, B)),
-        "contact_axes_before": np.zeros((T, B, 3)), "max_force": np.zeros((T, B)), "ee_force": np.zeros((T, B, 3)),
+        "contact_axes_before": np.zeros((T, B, 3)), "contact_axes": np.zeros((T, B, 3)), "max_force": np.zeros((T, B)),
+        "ee_force": np.zeros((T, B, 3)),
         "done": np.zeros((T, B)),
     }
 

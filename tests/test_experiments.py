@@ -86,7 +86,15 @@ def test_suite_unbreakable_runs_train_without_breaks(tmp_path):
 
 
 def test_suite_match_literal_runs_the_authors_force_law_and_only_it(tmp_path):
-    cfg = experiments.parse_args(["--out", str(tmp_path)])
+    """On the earlier task (damped law by default) the match_literal run differs from match only in its force
+    law; on the authors' task (the default) every run has the authors' law."""
+    authors = experiments.parse_args(["--out", str(tmp_path)])
+    assert authors.task == "authors"
+    for name in ("match", "pose", "match_literal"):
+        controller = experiments.run_spec(name, authors).env.controller
+        assert not controller.force_feedforward and controller.force_damping == (0.0, 0.0, 0.0)
+    assert experiments.run_spec("match", authors).env.force_sensor == "wrist"
+    cfg = experiments.parse_args(["--out", str(tmp_path), "--task", "earlier"])
     literal = experiments.run_spec("match_literal", cfg)
     assert literal.ppo.method == "match" and not literal.env.controller.force_feedforward
     assert literal.env.controller.force_damping == (0.0, 0.0, 0.0)
@@ -175,6 +183,7 @@ def _fake_grid(calls):
         traj["mean_force"][:, :, 2:, :] = 3.0
         traj["max_force"][:, :, 2:, :] = 4.0
         traj["max_force"][:, :, 2, 1] = 12.0
+        traj["ee_force"][:, :, 2, 1, 2] = -12.0  # the end-of-step reading of the same spike
         traj["phase"][:, :, 2:, :] = 1
         traj["done"][:, :, -1, :] = 1.0
         hybrid = spec.ppo.method in ("hybrid", "match")
@@ -337,7 +346,7 @@ def test_a_suite_continues_from_its_exported_results(tmp_path, monkeypatch, caps
     out = tmp_path / "suite"
     shutil.copytree(SHIPPED / "runs" / "pose", out / "runs" / "pose")
     shutil.copytree(SHIPPED / "eval", out / "eval")
-    command = ["--out", str(out), "--preset", "cpu", "--seeds", "3", "--total-steps", "2500000",
+    command = ["--out", str(out), "--preset", "cpu", "--task", "earlier", "--seeds", "3", "--total-steps", "2500000",
                "--episodes", "200", "--sweep-episodes", "200", "--only", "pose"]
     shipped = tmp_path / "shipped"
     assert experiments.main(command + ["--export", str(shipped)]) == 0

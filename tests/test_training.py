@@ -96,7 +96,7 @@ def test_runs_differing_in_ssl_break_force_or_noise_share_programs():
     assert float(runs[3].values.hole_obs_noise) == pytest.approx(0.0025) and runs[3].env.config.hole_obs_noise == 0.0025
     others = [RunSpec(ppo=get_preset("tiny", method="hybrid")),
               RunSpec(ppo=get_preset("tiny", method="match", ssl_phase="after", ssl_coef=0.0)),
-              RunSpec(ppo=base.ppo, env=FPiHConfig(control="hybrid", break_sampling="policy_step"))]
+              RunSpec(ppo=base.ppo, env=FPiHConfig(control="hybrid", break_sampling="peak"))]
     assert all(Run(spec, "unused").programs is not runs[0].programs for spec in others)
 
 
@@ -350,16 +350,30 @@ def test_checkpoint_writer_runs_one_write_at_a_time_and_reraises():
 
 
 def test_train_cli_controller_and_force_law_flags(tmp_path):
-    """Default: Factory's law with the damped, feed-forward force law; the paper's M_x law and the
-    literal force law are one flag each."""
+    """Default: the authors' task (Factory's law, the literal force law, wrist sensor, peg offset, 15 Hz
+    break); the paper's M_x law, the damped force law and each task setting are one flag each, and
+    --task earlier is this project's earlier variant."""
     spec = train_cli.build_spec(train_cli.parse_args(["--method", "match", "--out", str(tmp_path)]))
     c = spec.env.controller
-    assert not c.use_task_inertia and c.force_feedforward and c.force_damping == (20.0, 20.0, 20.0)
+    assert not c.use_task_inertia and not c.force_feedforward and c.force_damping == (0.0, 0.0, 0.0)
+    assert spec.env == dataclasses.replace(FPiHConfig(control="hybrid"), controller=c)
     spec = train_cli.build_spec(train_cli.parse_args(
-        ["--method", "match", "--controller", "paper", "--force-law", "literal", "--out", str(tmp_path)]))
+        ["--method", "match", "--controller", "paper", "--force-law", "damped", "--out", str(tmp_path)]))
     c = spec.env.controller
-    assert c.use_task_inertia and not c.force_feedforward and c.force_damping == (0.0, 0.0, 0.0)
-    assert spec.env.break_sampling == "peak"
+    assert c.use_task_inertia and c.force_feedforward and c.force_damping == (20.0, 20.0, 20.0)
+    assert spec.env.break_sampling == "policy_step"
+    earlier = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "match", "--task", "earlier", "--hole-noise-mm", "2.5", "--out", str(tmp_path)])).env
+    assert earlier.break_sampling == "peak" and earlier.force_sensor == "peg_contact" and not earlier.observe_torque
+    assert not earlier.randomization.enabled and earlier.spawn_noise_type == "gaussian"
+    assert earlier.controller.force_feedforward and earlier.hole_obs_noise == 0.0025
+    mixed = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "match", "--peg-offset-mm", "1,0,2", "--force-frame", "hand", "--force-sensor", "peg_contact",
+         "--out", str(tmp_path)])).env
+    assert mixed.randomization.peg_offset_range == (0.001, 0.0, 0.002) and mixed.force_frame == "hand"
+    assert mixed.force_sensor == "peg_contact" and not mixed.observe_torque
+    with pytest.raises(SystemExit):
+        train_cli.parse_args(["--method", "match", "--peg-offset-mm", "1,2", "--out", str(tmp_path)])
     spec = train_cli.build_spec(train_cli.parse_args(
         ["--method", "pose", "--break-sampling", "policy_step", "--out", str(tmp_path)]))
     assert spec.env.break_sampling == "policy_step"

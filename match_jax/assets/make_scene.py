@@ -113,6 +113,8 @@ def _arm_xml() -> str:
       f'{indent}  <inertial pos="0 0 0.04" mass="{HAND_MASS}" diaginertia="0.0025 0.001 0.0017"/>',
       f'{indent}  <geom class="visual" type="box" pos="0 0 0.06" size="0.02 0.09 0.025"/>',
       f'{indent}  <site name="ee" pos="0 0 {HAND_TCP}" size="0.002"/>',
+      # Wrist force/torque sensor frame: the flange, where the hand meets link 7 (sensors below).
+      f'{indent}  <site name="wrist" pos="0 0 0" size="0.002"/>',
       f'{indent}  <body name="peg" pos="0 0 {peg_center:.6f}">',
       f'{indent}    <inertial pos="0 0 0" mass="{PEG_MASS}" diaginertia="4.0e-06 4.0e-06 1.5e-07"/>',
       f'{indent}    <geom name="peg" type="mesh" mesh="peg" rgba="0.9 0.6 0.1 1" contype="0" '
@@ -201,6 +203,11 @@ def scene_xml() -> str:
   <contact>
 {pairs}
   </contact>
+  <sensor>
+    <!-- Wrist force/torque: the wrench link 7 exerts on the hand subtree (hand + peg), wrist frame. -->
+    <force name="wrist_force" site="wrist"/>
+    <torque name="wrist_torque" site="wrist"/>
+  </sensor>
   <actuator>
 {chr(10).join(f'    <motor name="motor{i + 1}" joint="joint{i + 1}" ctrlrange="{-t} {t}"/>' for i, t in enumerate(TORQUE_LIMITS))}
   </actuator>

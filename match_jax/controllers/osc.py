@@ -26,9 +26,13 @@ import jax
 import jax.numpy as jnp
 
 
+DAMPED_FORCE_DAMPING = (20.0, 20.0, 20.0)  # N s/m: k_vf of the 'damped' force law
+
+
 @dataclasses.dataclass(frozen=True)
 class ControllerConfig:
-    """Gains of the operational-space controller (IsaacLab Factory's law and gains by default).
+    """Gains of the operational-space controller (IsaacLab Factory's law and gains, and the authors'
+    'literal' force law, by default).
 
     Attributes:
       pos_stiffness: k_p for x, y, z (N/m on Factory's law; 1/s^2, i.e. N/m per kg, through M_x).
@@ -50,9 +54,9 @@ class ControllerConfig:
     pos_stiffness: tuple[float, float, float] = (100.0, 100.0, 100.0)
     rot_stiffness: tuple[float, float, float] = (30.0, 30.0, 30.0)
     force_gain: float = 0.5
-    force_feedforward: bool = True
+    force_feedforward: bool = False
     force_through_task_inertia: bool = False
-    force_damping: tuple[float, float, float] = (20.0, 20.0, 20.0)
+    force_damping: tuple[float, float, float] = (0.0, 0.0, 0.0)
     null_stiffness: float = 10.0
     use_task_inertia: bool = False
     gravity_compensation: bool = True
@@ -63,7 +67,7 @@ class ControllerConfig:
         'literal' k_f (f_d - f), no feed-forward and no damping (the authors' code; the paper's
         equation without the M_x that `force_through_task_inertia` adds)."""
         if law == "damped":
-            return dataclasses.replace(self, force_feedforward=True, force_damping=ControllerConfig.force_damping)
+            return dataclasses.replace(self, force_feedforward=True, force_damping=DAMPED_FORCE_DAMPING)
         if law == "literal":
             return dataclasses.replace(self, force_feedforward=False, force_damping=(0.0, 0.0, 0.0))
         raise ValueError(f"force law must be 'damped' or 'literal', got {law!r}")

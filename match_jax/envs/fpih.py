@@ -14,6 +14,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -26,12 +27,15 @@ from brax.envs.base import Env as BraxEnv  # noqa: E402
 from brax.envs.base import State  # noqa: E402
 from match_jax.controllers.action_spaces import ActionConfig, ActionSpace, get_action_space
 from match_jax.controllers.osc import ControllerConfig, ControlTarget, hybrid_torque, orientation_error
+from match_jax import randomization, sensors
+from match_jax.randomization import ModelRandomization
 from match_jax.sim import mjx
 
 # Hand pointing down: EE x = world x, EE y = -world y, EE z = -world z (at zero yaw).
 R_DOWN = np.diag([1.0, -1.0, -1.0])
 NOISE_TYPES = ("gaussian", "uniform")
 BREAK_SAMPLINGS = ("peak", "policy_step")
+FORCE_SENSORS = ("wrist", "peg_contact")
 PHASE_APPROACH, PHASE_CONTACT, PHASE_INSERTION = 0, 1, 2
 PHASE_NAMES = ("approach", "contact", "insertion")  # info['phase'] -> name
 
@@ -43,6 +47,10 @@ class FPiHConfig:
     Lengths in meters, forces in newtons, angles in radians, times in seconds.
     """
 
+    # Fields added after runs were recorded: a run config without them ran these values.
+    LEGACY_DEFAULTS = {"force_sensor": "peg_contact", "observe_torque": False,
+                       "randomization": {"peg_offset_range": (0.0, 0.0, 0.0)}}
+
     control: str = "hybrid"  # 'pose' | 'vices' | 'hybrid'
     scene_file: str = ""  # MJCF path; "" = the packaged fpih_scene.xml
     physics_backend: str = "jax"  # 'jax' (MJX) | 'warp' (MuJoCo Warp; pip install "match_jax[warp]")
@@ -53,12 +61,22 @@ class FPiHConfig:
     control_dt: float = 1.0 / 120.0
     physics_substeps: int = 1
     episode_steps: int = 150
-    # Break: the episode ends when the peg's contact force reaches break_force (math.inf = unbreakable),
-    # sampled as `break_sampling` says: 'peak' = max |F| over every physics step of the policy step (a
-    # real peg breaks on the peak); 'policy_step' = |F| read once per policy step, at its end (the
-    # authors' code: the wrist force at 15 Hz).
+    # Force signal of the force law, the 'policy_step' break check and the force/torque observation:
+    # 'wrist' = the wrist force/torque sensor, tared (`match_jax.sensors`; the authors' signal);
+    # 'peg_contact' = the sum of the peg's contact forces (no torque). `force_frame`: 'world' = that
+    # reading in the world frame, the law's frame; 'hand' = the authors' reading, negated in the hand
+    # frame and fed unrotated to the law and the policy (`sensors.authors_reading`: x/y mirrored).
+    force_sensor: str = "wrist"
+    force_frame: str = "world"
+    observe_torque: bool = True  # the policy sees the wrist torque beside the force (6-D, the authors')
+    # Break: the episode ends when the force reaches break_force (math.inf = unbreakable), sampled as
+    # `break_sampling` says: 'policy_step' = |F| of the force signal read once per policy step, at its end
+    # (the authors': the wrist force at 15 Hz); 'peak' = the peg's peak contact |F| over every physics step
+    # of the policy step (what a real peg feels).
     break_force: float = 10.0
-    break_sampling: str = "peak"
+    break_sampling: str = "policy_step"
+    # Per-episode model draws (the peg's pose in the hand: shown to the critic only).
+    randomization: ModelRandomization = ModelRandomization()
     # Hole placement: nominal bore centre on the table, uniform xy jitter, uniform yaw.
     hole_xy: tuple[float, float] = (0.55, 0.0)
     hole_xy_range: float = 0.02
@@ -68,13 +86,14 @@ class FPiHConfig:
     spawn_height: float = 0.047
     spawn_min_clearance: float = 0.005
     spawn_noise: tuple[float, float, float] = (0.02, 0.02, 0.01)
-    spawn_noise_type: str = "gaussian"
+    spawn_noise_type: str = "uniform"
     hand_yaw_range: float = 0.785
     ik_iterations: int = 12
     # Observation noise: hole position per episode; force and EE position per step.
     hole_obs_noise: float = 0.001
     hole_obs_noise_type: str = "gaussian"
     force_obs_noise: float = 1.0
+    torque_obs_noise: float = 0.2  # N m
     ee_pos_obs_noise: float = 0.00025
     # Success / engagement: peg tip within `success_radius` of the bore axis and below these heights
     # above the hole bottom.
@@ -97,10 +116,16 @@ class FPiHConfig:
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
         if self.break_sampling not in BREAK_SAMPLINGS:
             raise ValueError(f"break_sampling must be one of {BREAK_SAMPLINGS}, got {self.break_sampling!r}")
+        if self.force_sensor not in FORCE_SENSORS:
+            raise ValueError(f"force_sensor must be one of {FORCE_SENSORS}, got {self.force_sensor!r}")
+        if self.force_frame not in sensors.FORCE_FRAMES:
+            raise ValueError(f"force_frame must be one of {sensors.FORCE_FRAMES}, got {self.force_frame!r}")
+        if self.observe_torque and self.force_sensor != "wrist":
+            raise ValueError("observe_torque needs force_sensor='wrist' (the peg's contact forces carry no torque)")
         for name in ("spawn_noise_type", "hole_obs_noise_type"):
             if getattr(self, name) not in NOISE_TYPES:
                 raise ValueError(f"{name} must be one of {NOISE_TYPES}, got {getattr(self, name)!r}")
-        for name in ("hole_obs_noise", "force_obs_noise", "ee_pos_obs_noise", "hole_xy_range",
+        for name in ("hole_obs_noise", "force_obs_noise", "torque_obs_noise", "ee_pos_obs_noise", "hole_xy_range",
                      "hole_yaw_range", "hand_yaw_range", "contact_threshold"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
@@ -116,13 +141,30 @@ class FPiHConfig:
 
 def break_signal(sampling: str, max_force, ee_force):
     """The force (N) compared with the break threshold, as `FPiHConfig.break_sampling` says: 'peak' = the
-    max |F| over a policy step's physics steps (`max_force`); 'policy_step' = |F| of the reading at its
-    end (`ee_force`, (..., 3)). Works on one step or on a recorded (T, B) trajectory."""
+    peg's max contact |F| over a policy step's physics steps (`max_force`); 'policy_step' = |F| of the
+    force signal at its end (`ee_force`, (..., 3): the wrist reading by default). Works on one step or on
+    a recorded (T, B) trajectory."""
     if sampling == "peak":
         return max_force
     if sampling == "policy_step":
         return jnp.linalg.norm(ee_force, axis=-1)
     raise ValueError(f"break_sampling must be one of {BREAK_SAMPLINGS}, got {sampling!r}")
+
+
+class SimResult(NamedTuple):
+    """What `FPiHEnv.simulate` returns: the final data and the readings of its last physics step.
+
+    force / torque: the force signal (N, N m; `force_sensor` in `force_frame`); max_force / mean_force:
+    the peg's peak and mean contact |F| over the physics steps (N); contact_force: the peg's contact
+    force at the end (N, world), the source of the true contact label.
+    """
+
+    data: mjx.Data
+    force: jax.Array
+    max_force: jax.Array
+    mean_force: jax.Array
+    torque: jax.Array
+    contact_force: jax.Array
 
 
 def _yaw_rotation(yaw: jax.Array) -> jax.Array:
@@ -153,6 +195,8 @@ class FPiHEnv(BraxEnv):
                                        config.physics_backend)
         self.ids = sim.SceneIds(self.mj_model)
         self.mjx_model = sim.put_model(self.mj_model, config.physics_backend)
+        self.wrist = sensors.WristSensor(self.mj_model)
+        self.model_sampler = randomization.ModelSampler(self.mj_model, self.ids.peg_body, config.randomization)
         self._hole_top_offset = float(self.mj_model.site_pos[self.ids.hole_top_site][2])
         self._peg_tip_below_ee = self._nominal_peg_tip_below_ee()
         self._home_qpos = self._nominal_qpos()
@@ -216,9 +260,10 @@ class FPiHEnv(BraxEnv):
 
     @property
     def policy_obs_layout(self) -> dict[str, slice]:
-        """Where each quantity sits in obs['state'] (units: m, rad-free cos/sin, m/s, rad/s, N)."""
+        """Where each quantity sits in obs['state'] (units: m, rad-free cos/sin, m/s, rad/s, N, N m)."""
         sizes = [("ee_rel_hole", 3), ("hole_yaw_cos_sin", 2), ("ee_lin_vel", 3), ("ee_ang_vel", 3),
-                 ("ee_force", 3), ("prev_action", self.action_size)]
+                 ("ee_force", 3)] + ([("ee_torque", 3)] if self.config.observe_torque else []) + [
+                 ("prev_action", self.action_size)]
         layout, start = {}, 0
         for name, size in sizes:
             layout[name] = slice(start, start + size)
@@ -252,7 +297,10 @@ class FPiHEnv(BraxEnv):
     # --------------------------------------------------------------------------------- reset
     def reset(self, rng: jax.Array) -> State:
         cfg = self.config
-        rng, k_hole, k_yaw, k_spawn, k_hand, k_obs = jax.random.split(rng, 6)
+        rng, k_hole, k_yaw, k_spawn, k_hand, k_obs, k_model = jax.random.split(rng, 7)
+        model_fields = self.model_sampler.sample(k_model)
+        m = randomization.apply(self.mjx_model, model_fields)
+        peg_offset = self.model_sampler.peg_offset(model_fields)  # hand frame; +z = further out
         hole_xy = jnp.asarray(cfg.hole_xy) + jax.random.uniform(
             k_hole, (2,), minval=-cfg.hole_xy_range, maxval=cfg.hole_xy_range)
         hole_pos = jnp.concatenate([hole_xy, jnp.zeros(1)])  # bore bottom centre, on the table
@@ -260,7 +308,7 @@ class FPiHEnv(BraxEnv):
         spawn_noise = self._noise(k_spawn, jnp.asarray(cfg.spawn_noise), cfg.spawn_noise_type, (3,))
         hole_top = hole_pos + jnp.array([0.0, 0.0, self._hole_top_offset])
         ee_target = hole_top + jnp.array([0.0, 0.0, cfg.spawn_height]) + spawn_noise
-        min_ee_height = hole_top[2] + self._peg_tip_below_ee + cfg.spawn_min_clearance
+        min_ee_height = hole_top[2] + self._peg_tip_below_ee + peg_offset[2] + cfg.spawn_min_clearance
         ee_target = ee_target.at[2].set(jnp.maximum(ee_target[2], min_ee_height))
         hand_yaw = jax.random.uniform(k_hand, (), minval=-cfg.hand_yaw_range, maxval=cfg.hand_yaw_range)
         hole_obs_offset = self._noise(k_obs, self._hole_obs_noise, cfg.hole_obs_noise_type, (3,))
@@ -272,7 +320,7 @@ class FPiHEnv(BraxEnv):
             mocap_quat=data.mocap_quat.at[self.ids.hole_mocap].set(
                 jnp.array([jnp.cos(half), 0.0, 0.0, jnp.sin(half)])),
         )
-        data = self._inverse_kinematics(data, ee_target, _down_rotation(hand_yaw))
+        data = self._inverse_kinematics(data, ee_target, _down_rotation(hand_yaw), m)
         posture = data.qpos
 
         zeros3 = jnp.zeros(3)
@@ -284,7 +332,11 @@ class FPiHEnv(BraxEnv):
             "hole_obs_offset": hole_obs_offset,
             "posture": posture,
             "prev_action": self.neutral_action(),
+            "model": model_fields,
+            "peg_offset": peg_offset,
             "ee_force": zeros3,
+            "ee_torque": zeros3,
+            "contact_force": zeros3,
             "contact_axes": zeros3,
             "in_contact": jnp.zeros(()),
             "max_force": jnp.zeros(()),
@@ -325,9 +377,9 @@ class FPiHEnv(BraxEnv):
             action = action.at[self.action_space.force[2]].set(self.config.actions.force_z_action(0.0))
         return action
 
-    def _inverse_kinematics(self, data: mjx.Data, pos: jax.Array, rot: jax.Array) -> mjx.Data:
+    def _inverse_kinematics(self, data: mjx.Data, pos: jax.Array, rot: jax.Array, m: mjx.Model) -> mjx.Data:
         """Damped least-squares IK from the nominal joint angles to an EE pose (fixed iterations)."""
-        m, ids = self.mjx_model, self.ids
+        ids = self.ids
 
         def body(qpos, _):
             d = mjx.com_pos(m, mjx.kinematics(m, data.replace(qpos=qpos)))
@@ -353,8 +405,9 @@ class FPiHEnv(BraxEnv):
         action = jnp.clip(action, jnp.asarray(space.low), jnp.asarray(space.high))
         smoothed = self._smooth(action, info["prev_action"])
         target = self._control_target(data, info, smoothed)
-
-        data, ee_force, max_force, mean_force = self.simulate(data, info["ee_force"], target)
+        m = randomization.apply(self.mjx_model, info["model"])
+        data, ee_force, max_force, mean_force, ee_torque, contact_force = self.simulate(
+            data, info["ee_force"], target, model=m)
 
         rng, obs_key = jax.random.split(info["rng"])
         steps = info["steps"] + 1
@@ -364,7 +417,7 @@ class FPiHEnv(BraxEnv):
         success = ((lateral < cfg.success_radius) & (height < cfg.success_height)).astype(jnp.float32)
         engaged = ((lateral < cfg.success_radius) & (height < cfg.engage_height)).astype(jnp.float32)
         broken = (break_signal(cfg.break_sampling, max_force, ee_force) >= self._break_force).astype(jnp.float32)
-        contact_axes = (jnp.abs(ee_force) > cfg.contact_threshold).astype(jnp.float32)
+        contact_axes = (jnp.abs(contact_force) > cfg.contact_threshold).astype(jnp.float32)  # true contact
         in_contact = (jnp.any(contact_axes > 0) | (max_force > cfg.contact_threshold)).astype(jnp.float32)
         had_contact = jnp.maximum(info["had_contact"], in_contact)
         had_engaged = jnp.maximum(info["had_engaged"], engaged)
@@ -381,6 +434,8 @@ class FPiHEnv(BraxEnv):
             "steps": steps,
             "prev_action": smoothed,
             "ee_force": ee_force,
+            "ee_torque": ee_torque,
+            "contact_force": contact_force,
             "contact_axes": contact_axes,
             "in_contact": in_contact,
             "max_force": max_force,
@@ -400,27 +455,39 @@ class FPiHEnv(BraxEnv):
                              metrics=self._metrics(info, reward), info=info)
 
     def simulate(self, data: mjx.Data, ee_force: jax.Array, target: ControlTarget,
-                 control_steps: int | None = None):
+                 control_steps: int | None = None, model: mjx.Model | None = None) -> "SimResult":
         """Run the control law toward `target` for `control_steps` 120 Hz steps (default: one policy step).
 
-        Returns (data, last force reading (N, world), max |F| over physics steps, mean |F|), with
-        `data` kinematics refreshed at the final state. Exposed for tests and scripted experiments.
+        `ee_force` is the force signal (N, `force_sensor` in `force_frame`) the law starts from; `model`
+        the env's randomised model (default: the nominal one). Returns a `SimResult`, with `data`
+        kinematics refreshed at the final state. Exposed for tests and scripted experiments.
         """
-        cfg, m = self.config, self.mjx_model
+        cfg = self.config
+        m = self.mjx_model if model is None else model
         control_steps = cfg.control_substeps if control_steps is None else control_steps
         low, high = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
+        zeros3 = jnp.zeros(3)
 
         def torque_fn(d, force):
             dyn = sim.arm_dynamics(m, d, self.ids, force)
             return jnp.clip(hybrid_torque(dyn, target, cfg.controller), low, high)
 
         def physics_step(carry, hold_torque: bool):
-            d, force, max_force, force_sum = carry
+            d, force, _, _, max_force, force_sum = carry
             fn = (lambda d_: d_.ctrl) if hold_torque else (lambda d_: torque_fn(d_, force))
             d = sim.controlled_step(m, d, fn)
-            force = sim.peg_contact_force(m, d, self.ids.peg_geoms)
-            magnitude = jnp.linalg.norm(force)
-            return d, force, jnp.maximum(max_force, magnitude), force_sum + magnitude
+            contact = sim.peg_contact_force(m, d, self.ids.peg_geoms)
+            torque = zeros3
+            if cfg.force_sensor == "wrist":
+                d = sensors.compute(m, d)
+                force, torque = self.wrist.read(m, d)  # kinematics of the step's start, as the sensor's
+            else:
+                force = contact
+            if cfg.force_frame == "hand":
+                hand_rot = d.site_xmat[self.ids.ee_site]
+                force, torque = sensors.authors_reading(force, hand_rot), sensors.authors_reading(torque, hand_rot)
+            magnitude = jnp.linalg.norm(contact)
+            return d, force, torque, contact, jnp.maximum(max_force, magnitude), force_sum + magnitude
 
         def control_step(carry, _):
             # The law runs at 120 Hz on the latest force reading; its torque is held over the physics
@@ -431,10 +498,12 @@ class FPiHEnv(BraxEnv):
                                         length=cfg.physics_substeps - 1)
             return carry, None
 
-        carry = (data, ee_force, jnp.zeros(()), jnp.zeros(()))
-        (data, ee_force, max_force, force_sum), _ = jax.lax.scan(control_step, carry, None, length=control_steps)
+        carry = (data, ee_force, zeros3, zeros3, jnp.zeros(()), jnp.zeros(()))
+        (data, force, torque, contact, max_force, force_sum), _ = jax.lax.scan(
+            control_step, carry, None, length=control_steps)
         data = mjx.com_pos(m, mjx.kinematics(m, data))
-        return data, ee_force, max_force, force_sum / (control_steps * cfg.physics_substeps)
+        return SimResult(data, force, max_force, force_sum / (control_steps * cfg.physics_substeps), torque,
+                         contact)
 
     def _smooth(self, action: jax.Array, prev: jax.Array) -> jax.Array:
         """EMA on continuous components; selections pass through."""
@@ -477,22 +546,31 @@ class FPiHEnv(BraxEnv):
 
     def _observations(self, data: mjx.Data, info: dict, key: jax.Array) -> dict[str, jax.Array]:
         cfg, ids = self.config, self.ids
-        k_force, k_pos = jax.random.split(key)
+        k_force, k_pos = jax.random.split(key)  # the force key's draw stays that of earlier versions
+        k_torque = jax.random.fold_in(key, 1)
         ee_pos, ee_rot = data.site_xpos[ids.ee_site], data.site_xmat[ids.ee_site]
-        jacp, jacr = mjx.jac(self.mjx_model, data, ee_pos, ids.hand_body)
+        m = randomization.apply(self.mjx_model, info["model"])
+        jacp, jacr = mjx.jac(m, data, ee_pos, ids.hand_body)
         lin_vel, ang_vel = jacp.T @ data.qvel, jacr.T @ data.qvel
         hole_top = info["hole_pos"] + jnp.array([0.0, 0.0, self._hole_top_offset])
         hole_yaw = jnp.array([jnp.cos(info["hole_yaw"]), jnp.sin(info["hole_yaw"])])
         force = info["ee_force"]
         noisy_ee = ee_pos + cfg.ee_pos_obs_noise * jax.random.normal(k_pos, (3,))
         noisy_force = force + cfg.force_obs_noise * jax.random.normal(k_force, (3,))
+        wrench = [noisy_force]
+        if cfg.observe_torque:
+            wrench.append(info["ee_torque"] + cfg.torque_obs_noise * jax.random.normal(k_torque, (3,)))
         policy = jnp.concatenate([
-            noisy_ee - (hole_top + info["hole_obs_offset"]), hole_yaw, lin_vel, ang_vel, noisy_force,
+            noisy_ee - (hole_top + info["hole_obs_offset"]), hole_yaw, lin_vel, ang_vel, *wrench,
             info["prev_action"]])
         tip = data.site_xpos[ids.peg_tip_site]
+        # The critic also sees what the actor cannot: the peg's pose (and its offset in the hand), the
+        # true contact force, the noise-free wrench.
         privileged = jnp.concatenate([
             ee_pos - hole_top, hole_yaw, lin_vel, ang_vel, force, info["contact_axes"], data.qpos,
-            tip, data.xquat[ids.peg_body], info["hole_pos"], ee_pos, ee_rot.ravel(), info["prev_action"]])
+            tip, data.xquat[ids.peg_body], info["hole_pos"], ee_pos, ee_rot.ravel(), info["prev_action"]]
+            + ([info["ee_torque"], info["contact_force"], info["peg_offset"]]
+               if cfg.randomization.enabled or cfg.force_sensor == "wrist" else []))
         return {"state": policy, "privileged_state": privileged}
 
     def _metrics(self, info: dict, reward: jax.Array) -> dict[str, jax.Array]:

@@ -54,7 +54,7 @@ class AutoResetEnv:
             info = dict(s.info)
             for key in fresh.info:
                 if key not in TRANSITION_KEYS:
-                    info[key] = pick(fresh.info[key], s.info[key])
+                    info[key] = jax.tree_util.tree_map(pick, fresh.info[key], s.info[key])  # e.g. info['model']
             return s.replace(pipeline_state=jax.tree_util.tree_map(pick, fresh.pipeline_state, s.pipeline_state),
                              obs=jax.tree_util.tree_map(pick, fresh.obs, s.obs), info=info)
 
