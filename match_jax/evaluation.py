@@ -467,21 +467,25 @@ def _fmt_mean_se(mean: float, se: float) -> str:
     return _fmt(mean) if math.isnan(se) else f"{_fmt(mean)} +- {_fmt(se)}"
 
 
-def baseline_env(name: str, noise_m: float, noise_type: str = "gaussian", break_force: float = 10.0):
-    """The fPiH env a baseline runs in: its controller, the given hole noise (m) and break threshold (N)."""
+def baseline_env(name: str, noise_m: float, noise_type: str = "gaussian", break_force: float = 10.0,
+                 **task):
+    """The fPiH env a baseline runs in: its controller, the given hole noise (m) and break threshold (N),
+    and any other FPiHConfig field from `task` (e.g. break_sampling, randomization)."""
     return FPiHEnv(FPiHConfig(control=baselines.BASELINES[name][0], hole_obs_noise=noise_m,
-                              hole_obs_noise_type=noise_type, break_force=break_force))
+                              hole_obs_noise_type=noise_type, break_force=break_force, **task))
 
 
 def evaluate_baseline(name: str, episodes: int, noise_m: float, noise_type: str = "gaussian",
-                      break_force: float = 10.0, seed: int = 0, batch: int = 0) -> dict:
+                      break_force: float = 10.0, seed: int = 0, batch: int = 0, **task) -> dict:
     """Run `episodes` episodes of a scripted baseline (`match_jax.baselines`); the `summarize` dict and settings.
     noise_type 'shell': the hole offset lies on the shell out to `noise_m` (`shell_offsets`). `batch` > 0
-    runs the episodes in compiled batches of that size (0: all at once)."""
+    runs the episodes in compiled batches of that size (0: all at once); `task`: other FPiHConfig fields."""
     if noise_type not in NOISE_KINDS:
         raise ValueError(f"noise_type must be one of {NOISE_KINDS}, got {noise_type!r}")
     shell = noise_type == "shell"
-    env = baseline_env(name, 0.0 if shell else noise_m, "gaussian" if shell else noise_type, break_force)
+    # the rollout runs unbreakable; each break sampling's threshold is applied afterwards (`apply_break_threshold`)
+    env = baseline_env(name, 0.0 if shell else noise_m, "gaussian" if shell else noise_type, math.inf, **task)
+    sampling = env.config.break_sampling
     policy, policy_state = baselines.make_baseline(name, env)
     rollout = jax.jit(make_rollout(env, policy))
     batch = batch or episodes
@@ -501,13 +505,21 @@ def evaluate_baseline(name: str, episodes: int, noise_m: float, noise_type: str 
                 chunk_offsets = np.concatenate([chunk_offsets, offsets[: batch - len(chunk_offsets)]])
         states = jax.tree_util.tree_map(lambda x: np.broadcast_to(x, (batch,) + x.shape), policy_state)
         traj = rollout(chunk, states) if offsets is None else rollout(chunk, states, chunk_offsets)
-        metrics = episode_metrics(traj, env.dt)
         n = min(batch, episodes - start)
-        per_episode.append({k: v[:n] for k, v in metrics.items()})
-    merged = {k: np.concatenate([m[k] for m in per_episode]) for k in per_episode[0]}
-    summary = summarize(merged)
+        by_sampling = {}
+        for s in BREAK_SAMPLINGS:
+            broken = apply_break_threshold(traj, break_force, s) if math.isfinite(break_force) else traj
+            by_sampling[s] = {k: v[:n] for k, v in episode_metrics(broken, env.dt).items()}
+        per_episode.append(by_sampling)
+    merged = {s: {k: np.concatenate([m[s][k] for m in per_episode]) for k in per_episode[0][s]}
+              for s in BREAK_SAMPLINGS}
+    summary = summarize(merged[sampling])
+    for s in BREAK_SAMPLINGS:
+        summary[f"break_rate_{s}"] = float(np.mean(merged[s]["broken"]))
+    config = dataclasses.replace(env.config, break_force=break_force, hole_obs_noise=noise_m,
+                                 hole_obs_noise_type=noise_type if not shell else env.config.hole_obs_noise_type)
     summary.update(baseline=name, noise_mm=noise_m * 1000.0, noise_type=noise_type,
-                   break_force_n=break_force if math.isfinite(break_force) else None, seed=seed,
-                   env_config={k: v for k, v in dataclasses.asdict(env.config).items()
-                               if isinstance(v, (int, float, str))})
+                   break_force_n=break_force if math.isfinite(break_force) else None, break_sampling=sampling,
+                   seed=seed, env_config={k: v for k, v in dataclasses.asdict(config).items()
+                                          if isinstance(v, (int, float, str))})
     return summary

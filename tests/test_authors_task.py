@@ -12,6 +12,7 @@ import pytest
 from conftest import QUIET
 from match_jax import randomization, sensors
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
+from match_jax.envs.point_mass import PointMassConfig, PointMassEnv
 from match_jax.evaluation import (SHELL_EDGES_MM, authors_rates, episode_metrics, shell_inner_mm, shell_offsets,
                                   summarize)
 from match_jax.randomization import ModelRandomization
@@ -81,6 +82,32 @@ def test_peg_offset_spread_and_the_actor_does_not_see_it(offset_batch):
     assert residual.std() > 0.5 * offset[:, 0].std()
 
 
+class _ModelPointMass(PointMassEnv):
+    """PointMassEnv with per-episode model fields in info['model'], as FPiHEnv keeps them."""
+
+    def reset(self, rng):
+        state = super().reset(rng)
+        body_pos = jax.random.uniform(jax.random.fold_in(rng, 7), (4, 3))
+        return state.replace(info={**state.info, "model": {"body_pos": body_pos}})
+
+
+def test_auto_reset_redraws_the_model_fields_of_finished_envs_only():
+    """The trainer's auto-reset carries info['model'] (a dict) and redraws it where an env finished."""
+    env = AutoResetEnv(_ModelPointMass(PointMassConfig(episode_steps=2)))
+    reset, step = jax.jit(env.reset), jax.jit(env.step)
+    state = reset(jax.random.split(jax.random.PRNGKey(5), 4))
+    before = np.asarray(state.info["model"]["body_pos"])
+    actions = jnp.zeros((4, env.action_size))
+    state = step(state, actions)
+    np.testing.assert_array_equal(np.asarray(state.info["model"]["body_pos"]), before)  # mid-episode: kept
+    state = step(state.replace(info={**state.info, "steps": state.info["steps"].at[0].set(0)}), actions)
+    after = np.asarray(state.info["model"]["body_pos"])
+    assert np.asarray(state.done).tolist() == [0.0, 1.0, 1.0, 1.0]
+    np.testing.assert_array_equal(after[0], before[0])  # env 0 is still in its episode
+    assert np.all(np.abs(after[1:] - before[1:]) > 0)  # the others restarted with a fresh draw
+
+
+@pytest.mark.slow
 def test_auto_reset_draws_a_new_peg_offset_for_finished_envs_only():
     env = AutoResetEnv(FPiHEnv(FPiHConfig(control="pose", episode_steps=2, **SPREAD)))
     reset, step = jax.jit(env.reset), jax.jit(env.step)
