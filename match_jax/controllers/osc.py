@@ -7,7 +7,8 @@ torque in newton-meters. The task point is the end-effector (fingertip-centre) s
     pose:   u = J^T [k_p (x_d - x) - k_d xdot] + g(q)                      (Factory, default)
             u = J^T M_x [k_p (x_d - x) - k_d xdot] + g(q)                  (paper, use_task_inertia)
     hybrid: position law on axes with Lambda = 1, on the others the task force
-            k_f (f_d - f_ee) + f_d - k_vf xdot  (feed-forward and damping: docs/controllers.md)
+            k_f (f_d - f_ee)                    (the authors', default)
+            k_f (f_d - f_ee) + f_d - k_vf xdot  (the damped law: feed-forward and damping)
 
 with M_x = (J M^-1 J^T)^-1, Lambda the per-axis selection (1 = position control) on the three
 translational axes only (rotation is always pose-controlled), f_ee the force the robot applies to the
