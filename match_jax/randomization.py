@@ -1,12 +1,14 @@
-"""Per-env model randomisation: model fields drawn per episode, one value set per env.
+"""Per-env model randomisation: model fields and controller gains drawn per episode, one set per env.
 
-The env keeps the drawn fields in `state.info['model']` (a dict: mjx.Model field name -> that env's full
-array) and steps with `apply(mjx_model, fields)`. Under `vmap` over envs the replaced model is batched
-along the same axis as the data, as MuJoCo Playground's domain randomisation batches it, so auto-reset
-(a fresh draw per finished env), the seed batch and env sharding carry it like any other state.
+The env keeps the drawn model fields in `state.info['model']` (a dict: mjx.Model field name -> that env's
+full array) and steps with `apply(mjx_model, fields)`. Under `vmap` over envs the replaced model is
+batched along the same axis as the data, as MuJoCo Playground's domain randomisation batches it, so
+auto-reset (a fresh draw per finished env), the seed batch and env sharding carry it like any other
+state. Drawn controller gains live in `state.info['gains']` and enter the control target.
 
-Randomised now: the peg's pose in the hand (IsaacLab Factory's `held_asset_pos_noise`: the grasp moves
-on every reset). Masses, friction and gains can be added as more fields of the same dict.
+Randomised: the peg's pose in the hand (IsaacLab Factory's `held_asset_pos_noise`: the grasp moves on
+every reset), and, with the dynamics ranges on (`AUTHORS_DYNAMICS`), the held peg's mass and contact
+friction and the controller's position stiffness, rotation stiffness and force gain.
 """
 
 from __future__ import annotations
@@ -20,49 +22,139 @@ import numpy as np
 
 from match_jax.sim import mjx
 
+Range = tuple[float, float]
+GAIN_NAMES = ("pos_stiffness", "rot_stiffness", "force_gain")
+
+
+def _check_range(name: str, value, low: float, high: float) -> None:
+    if value is None:
+        return
+    if len(value) != 2 or not (low <= value[0] <= value[1] <= high):
+        raise ValueError(f"{name} must be None or (low, high) with {low} <= low <= high <= {high}, got {value!r}")
+
 
 @dataclasses.dataclass(frozen=True)
 class ModelRandomization:
-    """Ranges of the per-episode model draws.
+    """Ranges of the per-episode draws (uniform; None = the nominal value, not drawn).
 
     Attributes:
       peg_offset_range: half-widths (m) of the uniform offset of the peg in the hand, along the hand's
         x (across the fingers), y and z (along the peg, + = further out of the hand) axes.
+      peg_mass_scale: factor on the held peg's mass and inertia.
+      peg_friction: tangential friction coefficient of every peg contact (the scene's contact pairs all
+        involve the peg; nominal 0.75).
+      pos_stiffness: translational k_p (N/m), one draw shared by x, y and z; damping stays critical.
+      rot_stiffness: rotational k_p (N m/rad), one draw shared by the three axes.
+      force_gain: k_f of the force law.
     """
 
     peg_offset_range: tuple[float, float, float] = (0.003, 0.0, 0.003)
+    peg_mass_scale: Range | None = None
+    peg_friction: Range | None = None
+    pos_stiffness: Range | None = None
+    rot_stiffness: Range | None = None
+    force_gain: Range | None = None
 
     def __post_init__(self):
         if len(self.peg_offset_range) != 3 or any(not (0 <= v < 0.02) for v in self.peg_offset_range):
             raise ValueError(f"peg_offset_range must be 3 half-widths in [0, 0.02) m, got {self.peg_offset_range!r}")
+        _check_range("peg_mass_scale", self.peg_mass_scale, 1e-3, 1e3)
+        _check_range("peg_friction", self.peg_friction, 0.0, 10.0)
+        _check_range("pos_stiffness", self.pos_stiffness, 0.0, 1e5)
+        _check_range("rot_stiffness", self.rot_stiffness, 0.0, 1e5)
+        _check_range("force_gain", self.force_gain, 0.0, 100.0)
 
     @property
     def enabled(self) -> bool:
+        """Whether the peg moves in the hand."""
         return any(v > 0 for v in self.peg_offset_range)
+
+    @property
+    def dynamics(self) -> bool:
+        """Whether any dynamics parameter (mass, friction, gains) is drawn."""
+        return any(getattr(self, name) is not None for name in ("peg_mass_scale", "peg_friction") + GAIN_NAMES)
+
+    def with_dynamics(self, **ranges) -> "ModelRandomization":
+        """This config with the given dynamics ranges (default: the authors' `AUTHORS_DYNAMICS`)."""
+        return dataclasses.replace(self, **(ranges or AUTHORS_DYNAMICS))
+
+
+# The authors' dynamics randomisation for transfer: peg mass x U[0.8, 1.2], peg friction U[0.5, 2.0],
+# k_p U[60, 140] N/m, rotational k_p U[20, 60] N m/rad, k_f U[0.05, 0.6].
+AUTHORS_DYNAMICS = {"peg_mass_scale": (0.8, 1.2), "peg_friction": (0.5, 2.0), "pos_stiffness": (60.0, 140.0),
+                    "rot_stiffness": (20.0, 60.0), "force_gain": (0.05, 0.6)}
+
+
+def _uniform(key: jax.Array, bounds: Range) -> jax.Array:
+    return jax.random.uniform(key, (), minval=bounds[0], maxval=bounds[1])
 
 
 class ModelSampler:
-    """Draws per-env model fields for one scene (`model`) and one `ModelRandomization`."""
+    """Draws per-env model fields and controller gains for one scene (`model`) and one `ModelRandomization`."""
 
     def __init__(self, model: mujoco.MjModel, peg_body: int, config: ModelRandomization):
         self.config = config
         self.peg_body = peg_body
         self.nominal_body_pos = np.asarray(model.body_pos, np.float32)  # (nbody, 3), parent frames
+        self.nominal_body_mass = np.asarray(model.body_mass, np.float32)  # (nbody,), kg
+        self.nominal_body_inertia = np.asarray(model.body_inertia, np.float32)  # (nbody, 3), kg m^2
+        self.nominal_subtreemass = np.asarray(model.body_subtreemass, np.float32)  # (nbody,), kg
+        self.nominal_pair_friction = np.asarray(model.pair_friction, np.float32)  # (npair, 5)
+        ancestors, body = [], peg_body  # the peg and every body whose subtree holds it
+        while True:
+            ancestors.append(body)
+            if body == 0:
+                break
+            body = int(model.body_parentid[body])
+        self.peg_and_ancestors = np.asarray(ancestors)
 
     def sample(self, key: jax.Array) -> dict[str, jax.Array]:
-        """One env's randomised fields (empty when nothing is randomised)."""
-        if not self.config.enabled:
-            return {}
-        half = jnp.asarray(self.config.peg_offset_range, jnp.float32)
-        offset = jax.random.uniform(key, (3,), minval=-1.0, maxval=1.0) * half
-        body_pos = jnp.asarray(self.nominal_body_pos).at[self.peg_body].add(offset)
-        return {"body_pos": body_pos}
+        """One env's randomised model fields (empty when nothing of the model is randomised)."""
+        cfg, fields = self.config, {}
+        k_offset, k_mass, k_friction = key, jax.random.fold_in(key, 1), jax.random.fold_in(key, 2)
+        if cfg.enabled:
+            half = jnp.asarray(cfg.peg_offset_range, jnp.float32)
+            offset = jax.random.uniform(k_offset, (3,), minval=-1.0, maxval=1.0) * half
+            fields["body_pos"] = jnp.asarray(self.nominal_body_pos).at[self.peg_body].add(offset)
+        if cfg.peg_mass_scale is not None:
+            scale = _uniform(k_mass, cfg.peg_mass_scale)
+            peg_mass = self.nominal_body_mass[self.peg_body]
+            fields["body_mass"] = jnp.asarray(self.nominal_body_mass).at[self.peg_body].multiply(scale)
+            fields["body_inertia"] = jnp.asarray(self.nominal_body_inertia).at[self.peg_body].multiply(scale)
+            fields["body_subtreemass"] = jnp.asarray(self.nominal_subtreemass).at[self.peg_and_ancestors].add(
+                (scale - 1.0) * peg_mass)
+        if cfg.peg_friction is not None:
+            mu = _uniform(k_friction, cfg.peg_friction)
+            fields["pair_friction"] = jnp.asarray(self.nominal_pair_friction).at[:, :2].set(mu)
+        return fields
+
+    def sample_gains(self, key: jax.Array) -> dict[str, jax.Array]:
+        """One env's controller gains: 'pos_stiffness' (3,) N/m, 'rot_stiffness' (3,) N m/rad, 'force_gain'
+        () for the ranges that are set (empty when no gain is randomised). `key`: the same key as
+        `sample`'s (the draws are independent of its)."""
+        gains = {}
+        for i, name in enumerate(GAIN_NAMES):
+            bounds = getattr(self.config, name)
+            if bounds is not None:
+                value = _uniform(jax.random.fold_in(key, 3 + i), bounds)
+                gains[name] = value if name == "force_gain" else jnp.full(3, value)
+        return gains
 
     def peg_offset(self, fields: dict[str, jax.Array]) -> jax.Array:
         """The peg's offset (m, hand frame) from its nominal pose in the hand, (3,)."""
         if "body_pos" not in fields:
             return jnp.zeros(3)
         return fields["body_pos"][self.peg_body] - jnp.asarray(self.nominal_body_pos[self.peg_body])
+
+    def dynamics_values(self, fields: dict[str, jax.Array], gains: dict[str, jax.Array]) -> jax.Array:
+        """The dynamics parameters of one env as a vector for the critic, (5,): peg mass scale, peg contact
+        friction, k_p (N/m), rotational k_p (N m/rad), k_f; a gain that is not drawn reads 0."""
+        mass = fields["body_mass"][self.peg_body] / self.nominal_body_mass[self.peg_body] \
+            if "body_mass" in fields else jnp.ones(())
+        friction = fields["pair_friction"][0, 0] if "pair_friction" in fields \
+            else jnp.asarray(self.nominal_pair_friction[0, 0])
+        values = [mass, friction] + [gains[n].reshape(-1)[0] if n in gains else jnp.zeros(()) for n in GAIN_NAMES]
+        return jnp.stack([jnp.asarray(v, jnp.float32) for v in values])
 
 
 def apply(m: mjx.Model, fields: dict[str, jax.Array]) -> mjx.Model:

@@ -36,7 +36,7 @@ class WristSensor:
             raise ValueError(f"the scene has no wrist force/torque sensor ({err}); regenerate it with "
                              "match_jax/assets/make_scene.py") from None
         self.body = int(model.site_bodyid[self.site])
-        self.subtree_mass = float(model.body_subtreemass[self.body])  # kg, hand + peg
+        self.subtree_mass = float(model.body_subtreemass[self.body])  # kg, hand + peg, nominal
         self.gravity = np.asarray(model.opt.gravity, np.float32)  # m/s^2, world
 
     def read(self, m: mjx.Model, d: mjx.Data) -> tuple[jax.Array, jax.Array]:
@@ -46,7 +46,7 @@ class WristSensor:
         `d` must have its acceleration-stage sensors computed (`compute`, or a backend whose step does it).
         """
         rot = d.site_xmat[self.site]
-        weight = self.subtree_mass * jnp.asarray(self.gravity)
+        weight = m.body_subtreemass[self.body] * jnp.asarray(self.gravity)
         force = rot @ d.sensordata[self.force_adr:self.force_adr + 3] + weight
         lever = d.subtree_com[self.body] - d.site_xpos[self.site]
         torque = rot @ d.sensordata[self.torque_adr:self.torque_adr + 3] + jnp.cross(lever, weight)

@@ -121,6 +121,8 @@ class ControlTarget:
       position_axes: Lambda, 1.0 = position control, 0.0 = force control per world axis, (3,).
       pos_stiffness: per-axis translational k_p (VICES sets it; others use the config's), (3,).
       posture: null-space posture target (rad), (7,).
+      rot_stiffness: per-axis rotational k_p (N m/rad), (3,); None = the config's.
+      force_gain: k_f of the force law, (); None = the config's.
     """
 
     pos: jax.Array
@@ -129,6 +131,8 @@ class ControlTarget:
     position_axes: jax.Array
     pos_stiffness: jax.Array
     posture: jax.Array
+    rot_stiffness: jax.Array | None = None
+    force_gain: jax.Array | None = None
 
 
 def orientation_error(rot: jax.Array, rot_target: jax.Array) -> jax.Array:
@@ -147,13 +151,14 @@ def hybrid_torque(dyn: ArmDynamics, target: ControlTarget, config: ControllerCon
     """Joint torques (N m, unclamped) of the hybrid law; Lambda = 1 on all axes gives the pose law."""
     kp_pos = target.pos_stiffness
     kd_pos = 2.0 * jnp.sqrt(kp_pos)
-    kp_rot = jnp.asarray(config.rot_stiffness)
+    kp_rot = jnp.asarray(config.rot_stiffness if target.rot_stiffness is None else target.rot_stiffness)
+    force_gain = config.force_gain if target.force_gain is None else target.force_gain
     kd_rot = 2.0 * jnp.sqrt(kp_rot)
 
     ee_vel = dyn.jacobian @ dyn.qvel
     pos_cmd = kp_pos * (target.pos - dyn.ee_pos) - kd_pos * ee_vel[:3]
     force_axes = 1.0 - target.position_axes
-    force_cmd = force_axes * config.force_gain * (target.force - dyn.ee_force)
+    force_cmd = force_axes * force_gain * (target.force - dyn.ee_force)
     force_axes_damping = -force_axes * jnp.asarray(config.force_damping) * ee_vel[:3]  # Khatib's k_vf xdot term
     rot_cmd = kp_rot * orientation_error(dyn.ee_rot, target.rot) - kd_rot * ee_vel[3:]
     zeros3 = jnp.zeros(3)

@@ -75,7 +75,8 @@ class FPiHConfig:
     # of the policy step (what a real peg feels).
     break_force: float = 10.0
     break_sampling: str = "policy_step"
-    # Per-episode model draws (the peg's pose in the hand: shown to the critic only).
+    # Per-episode model draws (the peg's pose in the hand; with dynamics ranges, the peg's mass and
+    # friction and the controller gains: all shown to the critic only).
     randomization: ModelRandomization = ModelRandomization()
     # Hole placement: nominal bore centre on the table, uniform xy jitter, uniform yaw.
     hole_xy: tuple[float, float] = (0.55, 0.0)
@@ -299,6 +300,7 @@ class FPiHEnv(BraxEnv):
         cfg = self.config
         rng, k_hole, k_yaw, k_spawn, k_hand, k_obs, k_model = jax.random.split(rng, 7)
         model_fields = self.model_sampler.sample(k_model)
+        gains = self.model_sampler.sample_gains(k_model)
         m = randomization.apply(self.mjx_model, model_fields)
         peg_offset = self.model_sampler.peg_offset(model_fields)  # hand frame; +z = further out
         hole_xy = jnp.asarray(cfg.hole_xy) + jax.random.uniform(
@@ -333,6 +335,7 @@ class FPiHEnv(BraxEnv):
             "posture": posture,
             "prev_action": self.neutral_action(),
             "model": model_fields,
+            "gains": gains,
             "peg_offset": peg_offset,
             "ee_force": zeros3,
             "ee_torque": zeros3,
@@ -521,7 +524,8 @@ class FPiHEnv(BraxEnv):
         pos = ee_pos + action[jnp.asarray(space.position)] * acfg.pos_scale
         pos = jnp.clip(pos, observed_hole_top - acfg.pos_box, observed_hole_top + acfg.pos_box)
         yaw = _ee_yaw(ee_rot) + action[space.yaw[0]] * acfg.yaw_scale
-        kp = jnp.asarray(cfg.controller.pos_stiffness, jnp.float32)
+        gains = info["gains"]
+        kp = gains.get("pos_stiffness", jnp.asarray(cfg.controller.pos_stiffness, jnp.float32))
         if space.stiffness:
             kp = acfg.stiffness(action[jnp.asarray(space.stiffness)])
         force = jnp.zeros(3)
@@ -531,7 +535,8 @@ class FPiHEnv(BraxEnv):
             force = jnp.array([f[0] * acfg.force_xy_max, f[1] * acfg.force_xy_max, acfg.force_z(f[2])])
             position_axes = (action[jnp.asarray(space.selection)] <= acfg.selection_threshold).astype(jnp.float32)
         return ControlTarget(pos=pos, rot=_down_rotation(yaw), force=force, position_axes=position_axes,
-                             pos_stiffness=kp, posture=info["posture"])
+                             pos_stiffness=kp, posture=info["posture"], rot_stiffness=gains.get("rot_stiffness"),
+                             force_gain=gains.get("force_gain"))
 
     def _reward(self, data: mjx.Data, hole_pos: jax.Array) -> jax.Array:
         """Factory keypoint reward: keypoints on the peg axis vs the same keypoints at the goal."""
@@ -570,7 +575,9 @@ class FPiHEnv(BraxEnv):
             ee_pos - hole_top, hole_yaw, lin_vel, ang_vel, force, info["contact_axes"], data.qpos,
             tip, data.xquat[ids.peg_body], info["hole_pos"], ee_pos, ee_rot.ravel(), info["prev_action"]]
             + ([info["ee_torque"], info["contact_force"], info["peg_offset"]]
-               if cfg.randomization.enabled or cfg.force_sensor == "wrist" else []))
+               if cfg.randomization.enabled or cfg.force_sensor == "wrist" else [])
+            + ([self.model_sampler.dynamics_values(info["model"], info["gains"])]
+               if cfg.randomization.dynamics else []))
         return {"state": policy, "privileged_state": privileged}
 
     def _metrics(self, info: dict, reward: jax.Array) -> dict[str, jax.Array]:
