@@ -4,7 +4,7 @@
     python eval.py runs/match_cpu --noise-sweep 0,1,2.5,5,7.5 --episodes 500     # uniform +-X mm
     python eval.py runs/match_cpu --unbreakable --checkpoint latest
     python eval.py --baseline spiral --episodes 100 --noise-mm 1 --json results/spiral.json
-    python eval.py runs/match_cpu --episodes 100 --render results/match_episode.png  # + image strip
+    python eval.py runs/match_cpu --episodes 100 --render results/match_episode.png  # + image strip and GIF
 
 A run is evaluated for every seed with the deterministic policy (tanh of the mean, force control
 where p_force > 0.5) with one compiled rollout, run once per seed and noise level, at the training noise unless
@@ -47,7 +47,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=pathlib.Path, default=None, help="write the results here")
     parser.add_argument("--render", type=pathlib.Path, default=None,
-                        help="also save a PNG image strip of one episode (seed 0 of a run) here")
+                        help="also save a PNG image strip of one episode (seed 0 of a run) here, and a video of "
+                             "it beside the strip (same name, the video format's suffix)")
+    parser.add_argument("--video-format", choices=["gif", "mp4"], default=None,
+                        help="video beside the --render strip: gif (default, Pillow) or mp4 (needs imageio and "
+                             "imageio-ffmpeg: pip install 'match_jax[video]')")
     args = parser.parse_args(argv)
     if (args.run_dir is None) == (args.baseline is None):
         parser.error("give either a RUN_DIR or --baseline spiral|pose")
@@ -71,6 +75,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         args.break_force = 10.0
     if args.batch < 0:
         parser.error(f"--batch must be >= 0, got {args.batch}")
+    if args.video_format is not None and args.render is None:
+        parser.error("--video-format needs --render PATH (the video is written beside the strip)")
+    args.video_format = args.video_format or "gif"
     return args
 
 
@@ -116,8 +123,15 @@ def choose_gl_backend() -> None:
             os.environ["MUJOCO_GL"] = "egl"
 
 
+def video_path(strip: pathlib.Path, video_format: str) -> pathlib.Path:
+    """Where the video of a --render strip goes: beside it, same name, the format's suffix."""
+    path = strip.with_suffix(f".{video_format}")
+    return path if path != strip else strip.with_name(f"{strip.stem}_video.{video_format}")
+
+
 def render_episode(args) -> None:
-    """Save an image strip of one episode (the run's first seed, or the baseline) to args.render."""
+    """Save an image strip and a video of one episode (the run's first seed, or the baseline): the strip to
+    args.render, the video beside it (`video_path`)."""
     import jax
 
     from match_jax import baselines, render
@@ -142,9 +156,10 @@ def render_episode(args) -> None:
     try:
         path = render.render_strip(env, states, args.render, title=title)
     except render.RenderUnavailable as err:
-        print(f"no image strip: {err}", file=sys.stderr)
+        print(f"no image strip or video: {err}", file=sys.stderr)
         return
     print(f"wrote {path}")
+    print(f"wrote {render.render_video(env, states, video_path(args.render, args.video_format))}")
 
 
 def main(argv=None) -> int:
@@ -154,6 +169,13 @@ def main(argv=None) -> int:
     compile_cache.enable()
     if args.render:
         choose_gl_backend()
+        from match_jax.render import VIDEO_INSTALL, missing_video_packages
+
+        missing = missing_video_packages(args.video_format)
+        if missing:
+            print(f"error: --video-format {args.video_format} needs {', '.join(missing)}: "
+                  f"{VIDEO_INSTALL[args.video_format]}", file=sys.stderr)
+            return 2
     start = time.time()
     if args.run_dir is not None:
         from match_jax.checkpoints import CheckpointError

@@ -25,7 +25,8 @@ import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 METHODS = ("pose", "vices", "hybrid", "match")
 NETWORK_FIELDS = ("actor_hidden", "actor_blocks", "critic_hidden", "critic_blocks", "initial_log_std",
                   "initial_p_position", "initial_force_z")  # flags that replace a field of the preset's NetworkConfig
-RESUME_FLAGS = ("resume", "out", "total_steps", "max_chunks", "time_budget_min", "no_progress")  # apply with --resume
+RESUME_FLAGS = ("resume", "out", "total_steps", "max_chunks", "time_budget_min", "no_progress",
+                "tensorboard")  # apply with --resume
 
 
 TASKS = ("authors", "earlier")  # match_jax.envs.tasks.TASKS
@@ -119,6 +120,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--time-budget-min", type=float, default=None,
                         help="stop after the chunk that ends past this many minutes of wall clock (resumable)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--tensorboard", nargs="?", const=True, default=None, type=pathlib.Path, metavar="DIR",
+                        help="also log the metrics as TensorBoard scalars to DIR (default: OUT/tensorboard); "
+                             "needs tensorboardX (pip install 'match_jax[tensorboard]')")
     args = parser.parse_args(argv)
     if not args.resume and args.method is None:
         parser.error("--method is required (unless --resume)")
@@ -127,7 +131,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    if name not in RESUME_FLAGS and value != parser.get_default(name)]
         if ignored:
             parser.error(f"--resume continues the run as its config.json defines it; --{ignored[0].replace('_', '-')} "
-                         "cannot change it (only --total-steps, --max-chunks, --time-budget-min, --no-progress)")
+                         "cannot change it (only --total-steps, --max-chunks, --time-budget-min, --no-progress, "
+                         "--tensorboard)")
     for name in ("seeds", "total_steps", "num_envs", "max_chunks", "rollout_steps", "epochs", "minibatches",
                  "iterations_per_chunk", "actor_hidden", "critic_hidden"):
         value = getattr(args, name)
@@ -231,16 +236,27 @@ def main(argv=None) -> int:
     from match_jax.checkpoints import CheckpointError
     from match_jax.training import RunError, train
 
+    logger = None
+    if args.tensorboard is not None:
+        from match_jax.tb_logging import TensorBoardLogger, TensorBoardUnavailable
+        try:
+            logger = TensorBoardLogger(args.out / "tensorboard" if args.tensorboard is True else args.tensorboard)
+        except TensorBoardUnavailable as err:
+            print(f"error: --tensorboard: {err}", file=sys.stderr)
+            return 2
     try:
         spec = None if args.resume else build_spec(args)
         summary = train(spec, args.out, resume=args.resume, progress=not args.no_progress, max_chunks=args.max_chunks,
                         time_budget_s=None if args.time_budget_min is None else 60.0 * args.time_budget_min,
-                        total_steps=args.total_steps if args.resume else None)
+                        total_steps=args.total_steps if args.resume else None, on_rows=logger)
     except (RunError, CheckpointError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+    finally:
+        if logger is not None:
+            logger.close()
     print(json.dumps(summary, indent=2))
     return 0
 

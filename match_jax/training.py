@@ -317,7 +317,8 @@ def read_metrics(run_dir: str | pathlib.Path) -> list[dict]:
 
 
 def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = False, progress: bool = True,
-          max_chunks: int | None = None, time_budget_s: float | None = None, total_steps: int | None = None) -> dict:
+          max_chunks: int | None = None, time_budget_s: float | None = None, total_steps: int | None = None,
+          on_rows=None) -> dict:
     """Train (or, with resume=True, continue) a run in `run_dir`; returns a summary dict.
 
     With resume the spec is read from run_dir/config.json (`spec` may be None); `total_steps` (env steps
@@ -325,7 +326,8 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     learning rate decays over its budget). `max_chunks` stops
     after that many chunks (tests); `time_budget_s` stops after the first chunk that ends more than
     that many seconds (wall clock, compilation included) after the call began. Either way the run is
-    checkpointed and can be resumed later.
+    checkpointed and can be resumed later. `on_rows(rows)`, if given, gets each chunk's metric rows
+    once they are in metrics.jsonl (e.g. `tb_logging.TensorBoardLogger`).
     """
     if time_budget_s is not None and not time_budget_s > 0:
         raise RunError(f"time budget must be > 0 seconds, got {time_budget_s}")
@@ -391,6 +393,8 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
                 for row in rows:
                     row["wall_clock_s"] = round(time.time() - start, 2)
                     f.write(json.dumps(row) + "\n")
+            if on_rows is not None:
+                on_rows(rows)
             done_chunks += 1
             chunks_run += 1
             steps_this_session += steps_per_chunk * spec.num_seeds

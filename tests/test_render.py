@@ -66,8 +66,8 @@ def test_eval_picks_egl_only_when_headless_and_unset(monkeypatch):
 
 @pytest.mark.slow
 def test_eval_render_writes_a_strip_or_explains(tmp_path):
-    """eval.py --render picks EGL on a headless machine that has libEGL: a PNG strip of a real episode;
-    without it, a one-line message and exit code 0, never a traceback."""
+    """eval.py --render picks EGL on a headless machine that has libEGL: a PNG strip of a real episode and
+    a GIF of it beside the strip; without it, a one-line message and exit code 0, never a traceback."""
     out = tmp_path / "strip.png"
     proc = subprocess.run([sys.executable, str(REPO / "eval.py"), "--baseline", "pose", "--episodes", "1",
                            "--render", str(out)], capture_output=True, text=True, cwd=tmp_path,
@@ -81,6 +81,10 @@ def test_eval_render_writes_a_strip_or_explains(tmp_path):
         image = matplotlib.image.imread(out)
         assert image.shape[1] > 4 * image.shape[0] / 2, "six frames side by side"
         assert image.std() > 0.02
+        from PIL import Image
+
+        with Image.open(out.with_suffix(".gif")) as gif:
+            assert gif.n_frames > 6, "a frame per policy step"
     else:
         assert "no image strip" in proc.stderr and "MUJOCO_GL" in proc.stderr, proc.stderr[-2000:]
 
@@ -105,3 +109,76 @@ def test_record_episode_is_the_evaluation_rollout(env):
     np.testing.assert_array_equal(states["phase"], traj["phase"][:, 0])
     np.testing.assert_allclose(states["max_force"], traj["max_force"][:, 0], atol=1e-5)
     assert states["qpos"].shape == (7, env.mj_model.nq) and states["done"].shape == (6,)
+
+
+def _ending_states(env, steps=6, end=4):
+    """`_states` whose episode ends after `end` policy steps (the recording runs on to `steps`)."""
+    states = _states(env, steps)
+    states["done"] = (np.arange(steps) >= end - 1).astype(np.float32)
+    return states
+
+
+def _uniform_frames(env, states, steps, width=320, height=320, **kwargs):
+    return [np.full((height, width, 3), 90, np.uint8) for _ in steps]
+
+
+def test_gif_has_a_frame_per_policy_step_in_real_time(env, tmp_path, monkeypatch):
+    """A GIF of an episode that ends after 4 policy steps: 5 frames (reset + one per step), together one
+    policy step each long. The rendered images here are all alike: the captions keep the frames apart."""
+    from PIL import Image, ImageSequence
+
+    monkeypatch.setattr(render, "render_frames", _uniform_frames)
+    states = _ending_states(env)
+    path = render.render_video(env, states, tmp_path / "episode.gif")
+    with Image.open(path) as gif:
+        durations = [frame.info["duration"] for frame in ImageSequence.Iterator(gif)]
+        assert gif.n_frames == render.episode_length(states) + 1 == 5
+    assert abs(sum(durations) - 5 * env.dt * 1000) <= 5
+    assert render.gif_durations_ms(6, 15.0) == [70, 60, 70, 70, 60, 70]
+    with pytest.raises(ValueError, match="<= 50 for a GIF"):
+        render.render_video(env, states, tmp_path / "fast.gif", fps=60)
+
+
+def test_render_video_shows_the_scene_or_clear_message(env, tmp_path):
+    """With an OpenGL backend (MUJOCO_GL, as in test_render_frames_or_clear_message) a GIF of real frames."""
+    from PIL import Image
+
+    try:
+        path = render.render_video(env, _ending_states(env, steps=3, end=2), tmp_path / "episode.gif", width=96,
+                                   height=96)
+    except render.RenderUnavailable as err:
+        assert "MUJOCO_GL" in str(err)
+        pytest.skip(f"no OpenGL backend: {err}")
+    with Image.open(path) as gif:
+        assert gif.n_frames == 3 and gif.size == (96, 96)
+        assert np.asarray(gif.convert("RGB"))[48:].std() > 5.0, "a rendered scene is not a uniform image"
+
+
+def test_mp4_has_a_frame_per_policy_step(env, tmp_path, monkeypatch):
+    imageio = pytest.importorskip("imageio.v2")
+    pytest.importorskip("imageio_ffmpeg")
+    monkeypatch.setattr(render, "render_frames", _uniform_frames)
+    path = render.render_video(env, _ending_states(env), tmp_path / "episode.mp4")
+    with imageio.get_reader(str(path), format="FFMPEG") as reader:
+        assert reader.count_frames() == 5
+        assert reader.get_meta_data()["fps"] == pytest.approx(1.0 / env.dt, rel=1e-3)
+
+
+def test_video_format_needs_its_packages_and_render(env, tmp_path, monkeypatch, capsys):
+    """A missing writer package is a one-line error naming it and the extra, before any evaluation;
+    --video-format needs --render; the video lies beside the strip."""
+    import eval as eval_cli
+
+    monkeypatch.setitem(render.VIDEO_PACKAGES, "mp4", ("no_such_module_for_video",))
+    assert render.missing_video_packages("mp4") == ["no_such_module_for_video"]
+    with pytest.raises(render.VideoUnavailable, match="no_such_module_for_video.*match_jax\\[video\\]"):
+        render.render_video(env, _ending_states(env), tmp_path / "episode.mp4")
+    monkeypatch.setattr(eval_cli, "choose_gl_backend", lambda: None)
+    assert eval_cli.main(["--baseline", "pose", "--render", str(tmp_path / "s.png"), "--video-format", "mp4"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no_such_module_for_video" in err[0] and "match_jax[video]" in err[0], err
+    with pytest.raises(SystemExit):
+        eval_cli.parse_args(["--baseline", "pose", "--video-format", "gif"])
+    assert "--video-format needs --render" in capsys.readouterr().err
+    assert eval_cli.video_path(pathlib.Path("out/ep.png"), "gif") == pathlib.Path("out/ep.gif")
+    assert eval_cli.video_path(pathlib.Path("out/ep.gif"), "gif") == pathlib.Path("out/ep_video.gif")

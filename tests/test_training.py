@@ -220,6 +220,41 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         train(None, tmp_path / "nockpt", resume=True)
 
 
+def test_train_cli_tensorboard_equals_metrics_csv_across_a_resume(tmp_path):
+    """Tiny MATCH run, 2 seeds (the runner test's programs), one chunk, then --resume for another: the
+    event files' scalars are metrics.csv's values, per seed and as the mean over seeds."""
+    pytest.importorskip("tensorboardX")
+    import csv
+
+    from tb_events import read_scalars
+
+    out = tmp_path / "run"
+    common = ["--no-progress", "--max-chunks", "1", "--out", str(out), "--tensorboard"]
+    assert train_cli.main(["--method", "match", "--preset", "tiny", "--seeds", "2", "--total-steps", "128"]
+                          + common) == 0
+    assert train_cli.main(["--resume"] + common) == 0
+    with (out / "metrics.csv").open() as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == 4  # 2 iterations x 2 seeds
+    scalars = read_scalars(out / "tensorboard")
+    steps = sorted({int(r["env_steps"]) for r in table})
+    assert steps == [32, 64]
+    for key in ("loss", "value_loss", "p_force_free", "learning_rate", "episodes", "success_rate"):
+        logged = [r for r in table if r[key] != ""]  # no success rate in an iteration where no episode ended
+        for seed in (0, 1):
+            expected = {int(r["env_steps"]): float(r[key]) for r in logged if r["seed_index"] == str(seed)}
+            assert scalars.get(f"seed{seed}/{key}", {}) == pytest.approx(expected, rel=1e-6), key
+        mean = {s: np.mean([float(r[key]) for r in logged if int(r["env_steps"]) == s])
+                for s in {int(r["env_steps"]) for r in logged}}
+        assert scalars.get(f"mean/{key}", {}) == pytest.approx(mean, rel=1e-6), key
+    assert len(scalars["seed0/loss"]) == 2
+    assert not any(tag.endswith(("/iteration", "/env_steps", "/seed", "/wall_clock_s")) for tag in scalars)
+    custom = tmp_path / "tb"
+    assert train_cli.main(["--resume", "--no-progress", "--max-chunks", "1", "--out", str(out),
+                           "--tensorboard", str(custom)]) == 0
+    assert set(read_scalars(custom)["seed1/loss"]) == {96}
+
+
 def test_corrupted_checkpoint_is_a_clear_error(tmp_path, capsys):
     tree = {"a": np.arange(6.0, dtype=np.float32).reshape(2, 3), "b": np.ones(4, np.int32)}
     checkpoints.save(tmp_path / "ck", 5, tree)
