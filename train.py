@@ -114,6 +114,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "0,0,0 = rigid)")
     parser.add_argument("--spawn-noise", choices=["uniform", "gaussian"], default=None,
                         help="hand spawn noise +-(2, 2, 1) cm uniform (default) or gaussian with those sds")
+    parser.add_argument("--dynamics-randomization", action="store_true",
+                        help="draw per episode the authors' transfer ranges: peg mass x U[0.8, 1.2], peg friction "
+                             "U[0.5, 2.0], k_p U[60, 140] N/m, rotational k_p U[20, 60] N m/rad, force gain "
+                             "U[0.05, 0.6] (docs/transfer.md)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run directory")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks (resumable)")
@@ -223,6 +227,8 @@ def build_spec(args: argparse.Namespace):
         env = task_config(args.task, ppo.control, args.force_law, **overrides)
     except ValueError as err:
         raise SystemExit(f"train.py: error: {err}") from None
+    if args.dynamics_randomization:
+        env = dataclasses.replace(env, randomization=env.randomization.with_dynamics())
     env = dataclasses.replace(env, controller=dataclasses.replace(env.controller,
                                                                   use_task_inertia=args.controller == "paper"))
     return RunSpec(ppo=ppo, env=env, num_seeds=args.seeds, seed=args.seed, preset=args.preset)
