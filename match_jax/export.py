@@ -308,6 +308,24 @@ def action_layout(space, actions) -> list[dict]:
     return components
 
 
+def env_description(env) -> dict:
+    """What a policy of `env` (an FPiHEnv) reads and writes: 'control', 'policy_rate_hz', 'observation'
+    (size, components) and 'action' (layout, bounds, neutral action, smoothing, scaling config)."""
+    space = env.action_space
+    obs_layout = observation_layout(env)
+    return {
+        "control": env.config.control,
+        "policy_rate_hz": 1.0 / env.config.policy_dt,
+        "observation": {"size": sum(part["size"] for part in obs_layout), "components": obs_layout},
+        "action": {"size": space.size, "components": action_layout(space, env.config.actions),
+                   "continuous_indices": list(space.continuous), "selection_indices": list(space.selection),
+                   "neutral": np.asarray(env.neutral_action(), np.float64).tolist(), "ema": env.config.actions.ema,
+                   "smoothing": "the env applies a_ema = ema * a + (1 - ema) * a_prev to the continuous components "
+                                "(selections unsmoothed) and observes a_ema as the next prev_action",
+                   "config": dataclasses.asdict(env.config.actions)},
+    }
+
+
 def run_summary(spec) -> dict:
     """The parts of a RunSpec that say what the policy was trained for."""
     ppo, env = spec.ppo, spec.env
@@ -435,18 +453,10 @@ def export_policy(run_dir: str | pathlib.Path, out_dir: str | pathlib.Path, seed
         "format": FORMAT,
         "onnx_file": path.name,
         "method": spec.ppo.method,
-        "control": spec.ppo.control,
-        "policy_rate_hz": 1.0 / env.config.policy_dt,
         "onnx": _io(mapping, obs_size),
-        "observation": {"size": obs_size, "components": obs_layout},
+        **env_description(env),
         "normaliser": {"formula": f"clip((obs - mean) / std, -{OBS_CLIP}, {OBS_CLIP})",
                        "mean": normaliser.mean.tolist(), "std": normaliser.std.tolist()},
-        "action": {"size": space.size, "components": action_layout(space, env.config.actions),
-                   "continuous_indices": list(mapping.continuous), "selection_indices": list(mapping.selection),
-                   "neutral": np.asarray(env.neutral_action(), np.float64).tolist(), "ema": env.config.actions.ema,
-                   "smoothing": "the env applies a_ema = ema * a + (1 - ema) * a_prev to the continuous components "
-                                "(selections unsmoothed) and observes a_ema as the next prev_action",
-                   "config": dataclasses.asdict(env.config.actions)},
         "deterministic": "tanh(mean) on the continuous components; selection 1 (force) where p_force > 0.5",
         "stochastic": None if std_scale is None else {
             "std_scale": std_scale, "std": (np.exp(weights.log_std) * std_scale).tolist(),
