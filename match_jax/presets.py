@@ -7,7 +7,8 @@ run and a paper run solve the same task.
   0.5 the policy learned to hover above the block, at this preset (5 of 5 seeds on an H100, no contact
   by 1.38M steps) and at the cpu preset alike (docs/training.md).
 - `cpu`: sized for a 2-core CPU (measured: docs/benchmarks.md): 128 envs per seed, smaller SimBa networks
-  (actor 1 x 128, critic 2 x 128), 5M env steps budget.
+  (actor 1 x 128, critic 2 x 128), 2.5M env steps budget, and the learning settings that trained fastest at
+  this size (docs/training.md): Adam 1e-3, gamma 0.99, the untrained hybrid policy's force-z target 0 N.
 - `tiny`: a few envs and short rollouts, for smoke tests; it learns nothing.
 """
 
@@ -21,8 +22,9 @@ from match_jax.ppo import PPOConfig
 PRESETS: dict[str, PPOConfig] = {
     "paper": PPOConfig(num_envs=256, rollout_steps=150, total_steps=3_000_000, iterations_per_chunk=2,
                        minibatches=8, network=NetworkConfig(256, 2, 1024, 3, initial_log_std=-2.0)),
-    "cpu": PPOConfig(num_envs=128, rollout_steps=150, total_steps=5_000_000, iterations_per_chunk=4,
-                     minibatches=8, network=NetworkConfig(128, 1, 128, 2, initial_log_std=-2.0)),
+    "cpu": PPOConfig(num_envs=128, rollout_steps=150, total_steps=2_500_000, iterations_per_chunk=4,
+                     minibatches=8, learning_rate=1e-3, gamma=0.99,
+                     network=NetworkConfig(128, 1, 128, 2, initial_log_std=-2.0, initial_force_z=0.0)),
     "tiny": PPOConfig(num_envs=4, rollout_steps=8, total_steps=64, iterations_per_chunk=1, epochs=2,
                       minibatches=2, network=NetworkConfig(16, 1, 16, 1)),
 }
