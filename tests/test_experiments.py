@@ -307,6 +307,8 @@ def test_an_interrupted_suite_says_how_to_continue(tmp_path, monkeypatch, capsys
 
 
 SHIPPED = pathlib.Path(__file__).resolve().parents[1] / "results" / "suite_cpu"
+# The learning settings results/suite_cpu was trained with (the cpu preset's before the measured ones).
+EARLIER_SUITE_LEARNING = ["--learning-rate", "3e-4", "--gamma", "0.995", "--initial-force-z", "-1"]
 
 
 def test_shipped_suite_policies_load():
@@ -347,7 +349,7 @@ def test_a_suite_continues_from_its_exported_results(tmp_path, monkeypatch, caps
     shutil.copytree(SHIPPED / "runs" / "pose", out / "runs" / "pose")
     shutil.copytree(SHIPPED / "eval", out / "eval")
     command = ["--out", str(out), "--preset", "cpu", "--task", "earlier", "--seeds", "3", "--total-steps", "2500000",
-               "--episodes", "200", "--sweep-episodes", "200", "--only", "pose"]
+               "--episodes", "200", "--sweep-episodes", "200", "--only", "pose", *EARLIER_SUITE_LEARNING]
     shipped = tmp_path / "shipped"
     assert experiments.main(command + ["--export", str(shipped)]) == 0
     assert "[train] pose: exported run, trained (2,534,400 env steps per seed)" in capsys.readouterr().out

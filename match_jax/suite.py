@@ -1,0 +1,101 @@
+"""The experiment suite's runs and settings: which runs it trains, with what task, at which budget, and
+the noise sweep it evaluates them on (`match_jax.experiments` runs it, `match_jax.report` reports it)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+from typing import NamedTuple
+
+from match_jax.envs.tasks import task_config
+from match_jax.presets import get_preset
+from match_jax.training import RunSpec
+
+
+class SuiteRun(NamedTuple):
+    """One run of the suite: what it trains, with what task settings."""
+    label: str
+    method: str  # 'pose', 'vices', 'hybrid' or 'match'
+    ssl: bool  # the selection loss on (hybrid methods)
+    noise_mm: float  # training hole-observation noise (gaussian std, mm)
+    break_force: float  # training break force (N); inf = unbreakable
+    force_law: str | None  # None: the task's; 'damped' or 'literal' (`ControllerConfig.with_force_law`)
+
+
+SUITE = {
+    "pose": SuiteRun("Pose", "pose", True, 1.0, 10.0, None),
+    "vices": SuiteRun("VICES", "vices", True, 1.0, 10.0, None),
+    "hybrid": SuiteRun("Hybrid-Basic", "hybrid", True, 1.0, 10.0, None),
+    "match": SuiteRun("MATCH", "match", True, 1.0, 10.0, None),
+    "match_literal": SuiteRun("MATCH (authors' force law)", "match", True, 1.0, 10.0, "literal"),
+    "match_nossl": SuiteRun("MATCH (no SSL)", "match", False, 1.0, 10.0, None),
+    "hybrid_nossl": SuiteRun("Hybrid-Basic (no SSL)", "hybrid", False, 1.0, 10.0, None),
+    "pose_noise2.5": SuiteRun("Pose (trained at 2.5 mm)", "pose", True, 2.5, 10.0, None),
+    "pose_unbreakable": SuiteRun("Pose (unbreakable)", "pose", True, 1.0, math.inf, None),
+    "vices_unbreakable": SuiteRun("VICES (unbreakable)", "vices", True, 1.0, math.inf, None),
+    "hybrid_unbreakable": SuiteRun("Hybrid-Basic (unbreakable)", "hybrid", True, 1.0, math.inf, None),
+    "match_unbreakable": SuiteRun("MATCH (unbreakable)", "match", True, 1.0, math.inf, None),
+}
+# Table 1 of the paper: success %, break % (mean over 5 seeds x 100 episodes).
+PAPER_TABLE1 = {"pose": (95.4, 1.6), "vices": (95.2, 1.4), "hybrid": (98.2, 0.4), "match": (97.0, 0.0),
+                "match_nossl": (82.0, 8.2), "hybrid_nossl": (87.0, 2.6)}
+SWEEP_MM = (0.0, 1.0, 2.5, 5.0, 7.5)  # noise sweep levels (mm); 0 = the true hole position
+
+
+def sweep_noise_type(task: str) -> str:
+    """The noise sweep of a task protocol: the authors' spherical shells (radius U[previous level, level]
+    in a random direction) on their task, uniform +-level per axis on the earlier variant."""
+    return "shell" if task == "authors" else "uniform"
+HYBRID = tuple(name for name, run in SUITE.items() if run.method in ("hybrid", "match"))  # runs with selections
+
+
+def unbreakable(name: str) -> bool:
+    """Whether suite run `name` trains with an unbreakable peg."""
+    return math.isinf(SUITE[name].break_force)
+
+
+@dataclasses.dataclass(frozen=True)
+class SuiteConfig:
+    out: pathlib.Path
+    preset: str = "cpu"
+    task: str = "authors"  # task protocol of every run (`match_jax.envs.tasks`)
+    seeds: int = 3
+    total_steps: int | None = None
+    episodes: int = 100
+    sweep_episodes: int = 500
+    only: tuple[str, ...] = tuple(SUITE)
+    smoke: bool = False
+    selection_in_ratio: bool = True  # MATCH with SSL: False = the authors' code (selection by the SSL only)
+    time_budget_min: float | None = None  # per run and call: stop training after this much wall clock
+    skip_training: bool = False  # evaluate and report the checkpoints that exist, train nothing
+    train_only: bool = False  # train (or resume) the runs, evaluate and report nothing
+    report_only: bool = False  # report (and export) the current evaluations that exist, train and evaluate nothing
+    export: pathlib.Path | None = None  # copy the report, evaluations and best actors here (`export_suite`)
+    # Learning settings replacing the preset's for every run (None: the preset's), as train.py's flags do.
+    learning_rate: float | None = None
+    gamma: float | None = None
+    initial_force_z: float | None = None
+
+
+def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
+    """The run spec of suite run `name` under the suite settings `cfg`."""
+    run = SUITE[name]
+    overrides = {"method": run.method}
+    if not run.ssl:
+        overrides["ssl_coef"] = 0.0
+    if run.method == "match" and run.ssl and not cfg.selection_in_ratio:
+        # Without the SSL the selection would get no gradient at all out of the ratio, so no-SSL runs
+        # always keep it in (the paper's ablation: selection learned by RL alone).
+        overrides["selection_in_ratio"] = False
+    if cfg.total_steps is not None:
+        overrides["total_steps"] = cfg.total_steps
+    for name in ("learning_rate", "gamma"):
+        if getattr(cfg, name) is not None:
+            overrides[name] = getattr(cfg, name)
+    ppo = get_preset(cfg.preset, **overrides)
+    if cfg.initial_force_z is not None:
+        ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, initial_force_z=cfg.initial_force_z))
+    env = task_config(cfg.task, ppo.control, run.force_law, hole_obs_noise=run.noise_mm / 1000.0,
+                      break_force=run.break_force)
+    return RunSpec(ppo=ppo, env=env, num_seeds=cfg.seeds, preset=cfg.preset)
