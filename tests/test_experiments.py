@@ -399,6 +399,24 @@ def test_table1_names_each_runs_evaluation_noise():
     assert "Each run is evaluated at its training noise: gaussian hole-position noise of std 1 mm." in lines
 
 
+def test_table1_row_holds_both_break_checks_the_authors_metrics_and_the_papers():
+    """A Table 1 row: success, the run's break rate, peak / 15 Hz break rates, our / the authors' time and
+    force, then the paper's four numbers; a run the paper does not report gets dashes there."""
+    values = {"success_rate": 0.9, "break_rate": 0.02, "break_rate_peak": 0.1, "break_rate_policy_step": 0.02,
+              "mean_time_to_success_s": 5.25, "authors_time_to_success_s": 4.5, "mean_force_n": 0.5,
+              "authors_mean_force_n": 2.25}
+    grid = [{"noise_type": "gaussian", "noise_mm": 1.0, "break_force_n": 10.0, "per_seed": [values] * 3,
+             "aggregate": {k: {"mean": v} for k, v in values.items()}}]
+    lines = experiments._table1_lines({"match": grid, "pose_noise2.5": grid})
+    row = next(line for line in lines if line.startswith("| MATCH |"))
+    assert row == ("| MATCH | 90.0 +- 0.0 | 2.0 +- 0.0 | 10.0 +- 0.0 / 2.0 +- 0.0 | 5.25 +- 0.00 / 4.50 +- 0.00 "
+                   "| 0.50 +- 0.00 / 2.25 +- 0.00 | 97.0 | 0.0 | 2.5 | 2.7 |")
+    other = next(line for line in lines if line.startswith("| Pose (trained at 2.5 mm) |"))
+    assert other.endswith("| - | - | - | - |")
+    header = next(line for line in lines if line.startswith("| method |"))
+    assert header.count("|") == row.count("|")
+
+
 def test_plot_styles_keep_methods_apart_and_dash_unbreakable_runs():
     """Every method of the suite gets its own color; a run trained unbreakable is dashed in its method's."""
     from match_jax import plots
