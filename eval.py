@@ -44,6 +44,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="break threshold in N (default: a run's training value; 10 for baselines)")
     parser.add_argument("--unbreakable", action="store_true", help="no break threshold")
     parser.add_argument("--batch", type=int, default=0, help="scripted baselines: episodes per jitted batch (default: all)")
+    parser.add_argument("--physics-backend", choices=["jax", "warp"], default=None,
+                        help="evaluate a run's policies on this physics backend (default: the run's own)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=pathlib.Path, default=None, help="write the results here")
     parser.add_argument("--render", type=pathlib.Path, default=None,
@@ -106,7 +108,8 @@ def evaluate_run_dir(args) -> dict:
         None if args.noise_mm is None else [args.noise_mm])
     noise_type = args.noise_type or ("shell" if args.noise_sweep is not None else None)
     results = evaluate_run_grid(args.run_dir, args.episodes, levels, noise_type,
-                                None if break_force is None else [break_force], args.checkpoint, 1000 + args.seed)
+                                None if break_force is None else [break_force], args.checkpoint, 1000 + args.seed,
+                                physics_backend=args.physics_backend)
     for result in results:
         print(format_result(result))
     return results[0] if args.noise_sweep is None else {"noise_sweep": results}

@@ -118,6 +118,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="draw per episode the authors' transfer ranges: peg mass x U[0.8, 1.2], peg friction "
                              "U[0.5, 2.0], k_p U[60, 140] N/m, rotational k_p U[20, 60] N m/rad, force gain "
                              "U[0.05, 0.6] (docs/transfer.md)")
+    parser.add_argument("--physics-backend", choices=["jax", "warp"], default="jax",
+                        help="MJX's JAX physics (default) or MuJoCo Warp (pip install 'match_jax[warp]'; "
+                             "docs/gpu.md#physics-backend)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="run directory")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     parser.add_argument("--max-chunks", type=int, default=None, help="stop after this many chunks (resumable)")
@@ -137,6 +140,11 @@ def parse_args(argv=None) -> argparse.Namespace:
             parser.error(f"--resume continues the run as its config.json defines it; --{ignored[0].replace('_', '-')} "
                          "cannot change it (only --total-steps, --max-chunks, --time-budget-min, --no-progress, "
                          "--tensorboard)")
+    if args.physics_backend == "warp":
+        from match_jax import sim
+
+        if not sim.warp_installed():
+            parser.error('--physics-backend warp needs NVIDIA Warp: pip install "match_jax[warp]"')
     for name in ("seeds", "total_steps", "num_envs", "max_chunks", "rollout_steps", "epochs", "minibatches",
                  "iterations_per_chunk", "actor_hidden", "critic_hidden"):
         value = getattr(args, name)
@@ -219,6 +227,7 @@ def build_spec(args: argparse.Namespace):
     overrides = {name: value for name, value in (
         ("break_sampling", args.break_sampling), ("force_sensor", args.force_sensor),
         ("force_frame", args.force_frame), ("spawn_noise_type", args.spawn_noise)) if value is not None}
+    overrides["physics_backend"] = args.physics_backend
     if args.peg_offset_mm is not None:
         overrides["randomization"] = ModelRandomization(peg_offset_range=tuple(v / 1000.0 for v in args.peg_offset_mm))
     for name in ("hole_obs_noise", "break_force"):

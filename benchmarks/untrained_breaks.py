@@ -26,7 +26,8 @@ import numpy as np
 
 from match_jax.envs import FPiHConfig
 from match_jax.evaluation import make_rollout
-from match_jax.ppo import make_env, make_trainer
+from match_jax.ppo import make_trainer
+from match_jax.training import make_env
 from match_jax.presets import get_preset
 
 SETTINGS = {

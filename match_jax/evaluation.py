@@ -29,7 +29,7 @@ from match_jax import analysis, baselines
 from match_jax.envs import FPiHConfig, FPiHEnv
 from match_jax.envs.fpih import BREAK_SAMPLINGS, break_signal
 from match_jax.ppo import PPOConfig, deterministic_policy, make_trainer
-from match_jax.training import batch_mesh, load_policies, load_spec, shard_batch
+from match_jax.training import batch_mesh, load_policies, load_spec, shard_batch, sized_for_batch
 
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
@@ -308,7 +308,8 @@ def _grid_rollout(ppo: PPOConfig, env_config: FPiHConfig):
 
 def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_levels_mm=None,
                       noise_type: str | None = None, break_forces=None, checkpoint: str = "best",
-                      seed: int = 1000, return_trajectories: bool = False, noise_specs=None) -> list[dict]:
+                      seed: int = 1000, return_trajectories: bool = False, noise_specs=None,
+                      physics_backend: str | None = None) -> list[dict]:
     """Evaluate every seed of a run at several noise levels and break thresholds in ONE compiled rollout.
 
     The rollout runs unbreakable; a break threshold is applied afterwards (identical up to the first
@@ -317,11 +318,14 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     levels are compared on the same episodes. Defaults: the run's training noise level and type, and
     its break threshold. `noise_specs`, a list of (level mm, 'gaussian' | 'uniform'), replaces
     noise_levels_mm / noise_type to mix noise types in the same compiled rollout. Returns one result
-    dict (see `evaluate_run`) per (noise level, break force).
+    dict (see `evaluate_run`) per (noise level, break force). `physics_backend` ('jax' | 'warp'; None: the
+    run's own) evaluates the policies on that physics backend.
     """
     if not (isinstance(episodes, int) and episodes >= 1):
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
     spec = load_spec(run_dir)
+    if physics_backend is not None:
+        spec = dataclasses.replace(spec, env=dataclasses.replace(spec.env, physics_backend=physics_backend))
     if noise_specs is None:
         levels = [spec.env.hole_obs_noise * 1000.0] if noise_levels_mm is None else [float(x) for x in noise_levels_mm]
         noise_specs = [(level, noise_type or spec.env.hole_obs_noise_type) for level in levels]
@@ -334,7 +338,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     run, policies = load_policies(run_dir, checkpoint)
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[(p["params"], p["policy_stats"]) for p in policies])
     hybrid = run.trainer.distribution.num_selections > 0
-    env, grid_rollout = _grid_rollout(*evaluation_config(spec.ppo, spec.env))
+    env, grid_rollout = _grid_rollout(*evaluation_config(spec.ppo, sized_for_batch(spec.env, episodes)))
     k_episodes, k_noise = jax.random.split(jax.random.PRNGKey(seed))
     keys = jax.random.split(k_episodes, spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
     shape = (spec.num_seeds, 1, episodes, 3)
@@ -348,7 +352,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     u_radius = jax.random.uniform(jax.random.fold_in(k_noise, 1), shape[:-1])  # the same draw at every level
     shells = shell_offsets(z_gauss, u_radius, inner, jnp.asarray(levels)[None, :, None] / 1000.0)
     offsets = jnp.where(is_shell, shells, offsets)
-    mesh = batch_mesh(episodes)  # episodes split over the CPU devices (one per core), if they divide evenly
+    mesh = batch_mesh(episodes, spec.env.physics_backend)  # episodes split over the CPU devices (one per core), if they divide evenly
     # One (seed, level) per call, `episodes` envs: the control law's batched LAPACK LU splits a large
     # batch over XLA's CPU thread pool, and on 2 cores a 3-seed x 6-level x 200-episode call deadlocked
     # that pool (every thread waiting in lapack_sgetrf's ParallelBatchMap).
@@ -428,14 +432,14 @@ def _aggregate(per_seed: list[dict], hybrid: bool) -> dict:
 
 def evaluate_run(run_dir: str | pathlib.Path, episodes: int = 100, noise_mm: float | None = None,
                  noise_type: str | None = None, break_force: float | None = None, checkpoint: str = "best",
-                 seed: int = 1000, return_trajectories: bool = False) -> dict:
+                 seed: int = 1000, return_trajectories: bool = False, physics_backend: str | None = None) -> dict:
     """Evaluate every seed of a run on `episodes` episodes each; per-seed and mean +- SE metrics.
 
-    noise_mm / noise_type / break_force override the run's task settings (None: as trained).
+    noise_mm / noise_type / break_force / physics_backend override the run's settings (None: as trained).
     """
     return evaluate_run_grid(run_dir, episodes, None if noise_mm is None else [noise_mm], noise_type,
                              None if break_force is None else [break_force], checkpoint, seed,
-                             return_trajectories)[0]
+                             return_trajectories, physics_backend=physics_backend)[0]
 
 
 def format_result(result: dict) -> str:

@@ -215,6 +215,8 @@ def parse_args(argv=None) -> SuiteConfig:
     parser.add_argument("--gamma", type=float, default=None, help="discount per policy step of every run (preset's)")
     parser.add_argument("--initial-force-z", type=float, default=None,
                         help="hybrid runs: the untrained policy's force-z target, N (preset's: -1)")
+    parser.add_argument("--physics-backend", choices=["jax", "warp"], default="jax",
+                        help="physics of every run: MJX's JAX backend or MuJoCo Warp (pip install 'match_jax[warp]')")
     parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
                         help="MATCH (with SSL) leaves the selection term out of the PPO ratio (the authors' code); "
@@ -239,9 +241,14 @@ def parse_args(argv=None) -> SuiteConfig:
         parser.error(f"--learning-rate must be a finite number > 0, got {args.learning_rate}")
     if args.gamma is not None and not 0 <= args.gamma <= 1:
         parser.error(f"--gamma must be in [0, 1], got {args.gamma}")
+    if args.physics_backend == "warp":
+        from match_jax import sim
+
+        if not sim.warp_installed():
+            parser.error('--physics-backend warp needs NVIDIA Warp: pip install "match_jax[warp]"')
     common = dict(out=args.out, export=args.export, only=only, selection_in_ratio=not args.selection_not_in_ratio,
                   task=args.task, learning_rate=args.learning_rate, gamma=args.gamma,
-                  initial_force_z=args.initial_force_z,
+                  initial_force_z=args.initial_force_z, physics_backend=args.physics_backend,
                   time_budget_min=args.time_budget_min, skip_training=args.skip_training,
                   train_only=args.train_only, report_only=args.report_only)
     if args.smoke:

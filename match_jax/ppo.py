@@ -35,6 +35,7 @@ from brax.training.acme import specs
 
 from match_jax.distributions import METHODS, METHOD_CONTROL, ProductDistribution, Sample, make_distribution
 from match_jax.losses import ppo_loss, selection_loss, selection_rates
+from match_jax import sim
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv, contract
 from match_jax.networks import Actor, Critic, NetworkConfig
 
@@ -235,18 +236,6 @@ def initial_stats(size: int) -> running_statistics.RunningStatisticsState:
     return stats.replace(std_eps=jnp.asarray(stats.std_eps, jnp.float32))
 
 
-def make_env(config: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv:
-    """The fPiH env of a method; `env_config` (task settings) must use the method's controller."""
-    env_config = env_config or FPiHConfig(control=config.control)
-    if env_config.physics_backend != "jax":
-        raise ValueError(f"training runs on physics_backend 'jax', got {env_config.physics_backend!r}: MuJoCo Warp's "
-                         "batched contact buffers do not fit the trainer's auto-reset and env sharding yet; use "
-                         "the Warp env through jit(vmap(env.reset / env.step))")
-    if env_config.control != config.control:
-        raise ValueError(f"method {config.method!r} needs control={config.control!r}, env has {env_config.control!r}")
-    return FPiHEnv(env_config)
-
-
 class RuntimeValues(NamedTuple):
     """Settings the trainer takes as arguments, not as constants of its program: configurations that
     differ only in these share one compiled program (`training.programs`)."""
@@ -328,6 +317,20 @@ def critic_observation(privileged: jax.Array, steps: jax.Array, episode_steps: i
     return jnp.concatenate([privileged, (steps / float(episode_steps))[..., None]], axis=-1)
 
 
+def _merge_seeds(d, lead: tuple[int, int]):
+    """Physics data with (seeds, envs, ...) world leaves as one batch of seeds x envs worlds. MuJoCo Warp's
+    once-per-batch leaves (contact buffer, counters: `sim.world_axis_leaves`) hold one copy per seed, each
+    sized for the whole merged batch (FPiHConfig.warp_worlds); the step gets the first."""
+    return jax.tree_util.tree_map(lambda x, world: x.reshape((lead[0] * lead[1],) + x.shape[2:]) if world else x[0],
+                                  d, sim.world_axis_leaves(d))
+
+
+def _split_seeds(d, like):
+    """`_merge_seeds` undone: leaves shaped as in `like` (the (seeds, envs, ...) data before the step)."""
+    return jax.tree_util.tree_map(lambda x, old, world: x.reshape(old.shape) if world else
+                                  jnp.broadcast_to(x, old.shape), d, like, sim.world_axis_leaves(like))
+
+
 def seed_batch_step(benv: AutoResetEnv, num_envs: int, mesh: jax.sharding.Mesh | None = None):
     """`benv.step` on (seeds, envs, ...) state and action leaves, stepped as one flat batch: a vmap over
     seeds would turn the auto-reset's lax.cond into a select that runs the reset on every step.
@@ -340,9 +343,12 @@ def seed_batch_step(benv: AutoResetEnv, num_envs: int, mesh: jax.sharding.Mesh |
     """
     def step_seeds(state, action):
         lead = action.shape[:2]
-        flat_state = jax.tree_util.tree_map(lambda x: x.reshape((lead[0] * lead[1],) + x.shape[2:]), state)
+        flat_state = jax.tree_util.tree_map(lambda x: x.reshape((lead[0] * lead[1],) + x.shape[2:]),
+                                            state.replace(pipeline_state=None))
+        flat_state = flat_state.replace(pipeline_state=_merge_seeds(state.pipeline_state, lead))
         next_state = benv.step(flat_state, action.reshape((lead[0] * lead[1],) + action.shape[2:]))
-        return jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), next_state)
+        split = jax.tree_util.tree_map(lambda x: x.reshape(lead + x.shape[1:]), next_state.replace(pipeline_state=None))
+        return split.replace(pipeline_state=_split_seeds(next_state.pipeline_state, state.pipeline_state))
 
     if mesh is None:
         return step_seeds

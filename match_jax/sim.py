@@ -26,11 +26,12 @@ from match_jax.controllers.osc import ArmDynamics
 SCENE_FILE = "fpih_scene.xml"
 ARM_JOINTS = 7
 PHYSICS_BACKENDS = ("jax", "warp")
-# MuJoCo Warp's buffer sizes. Broadphase pairs and contacts: naconmax for all the worlds of a batch
-# together; one world of this scene peaked at 8 pairs and 4 contacts (MuJoCo Warp's own allowance for
-# it: 48). Constraint rows: njmax per world (peak 16). On overflow MuJoCo Warp prints a warning and
-# drops the excess.
-WARP_NACONMAX = 2048
+# MuJoCo Warp's buffer sizes. Broadphase pairs and contacts: one buffer of naconmax for all the worlds
+# of a batch together (`warp_naconmax`); one world of this scene peaked at 8 pairs and 4 contacts
+# (MuJoCo Warp's own allowance for it: 48). Constraint rows: njmax per world (peak 16). On overflow
+# MuJoCo Warp prints a warning and drops the excess.
+WARP_CONTACTS_PER_WORLD = 8
+WARP_MIN_NACONMAX = 256
 WARP_NJMAX = 256
 PEG_FORCE_SENSORS = ("peg_force", "peg_rim_proxy_force")
 
@@ -74,22 +75,50 @@ def add_peg_force_sensors(spec: mujoco.MjSpec) -> mujoco.MjSpec:
     return spec
 
 
+def warp_installed() -> bool:
+    """Whether MuJoCo Warp can run here (the `warp` extra)."""
+    return bool(_mjx_warp.WARP_INSTALLED)
+
+
 def put_model(model: mujoco.MjModel, physics_backend: str = "jax") -> mjx.Model:
     """The MJX model of `model` for physics_backend 'jax' (MJX in JAX) or 'warp' (MuJoCo Warp)."""
     if physics_backend == "jax":
         return mjx.put_model(model)
     if physics_backend != "warp":
         raise ValueError(f"physics_backend must be one of {PHYSICS_BACKENDS}, got {physics_backend!r}")
-    if not _mjx_warp.WARP_INSTALLED:
+    if not warp_installed():
         raise ImportError('physics_backend="warp" needs NVIDIA Warp: pip install "match_jax[warp]"')
     return mjx.put_model(model, impl="warp")
 
 
-def make_data(model: mujoco.MjModel, m: mjx.Model) -> mjx.Data:
-    """Fresh MJX data of the C model `model` for its MJX model `m` (either backend)."""
+def warp_naconmax(worlds: int) -> int:
+    """MuJoCo Warp's contact buffer for a batch of `worlds` worlds (one buffer for all of them)."""
+    return max(WARP_MIN_NACONMAX, WARP_CONTACTS_PER_WORLD * int(worlds))
+
+
+def make_data(model: mujoco.MjModel, m: mjx.Model, warp_worlds: int = 1) -> mjx.Data:
+    """Fresh MJX data of the C model `model` for its MJX model `m` (either backend).
+
+    warp_worlds: on MuJoCo Warp, the most worlds one vmapped call will hold: its contact buffer is shared
+    by all worlds of a batch, so vmapping this function over more worlds than that drops contacts."""
     if m.impl == mjx.Impl.WARP:
-        return mjx.make_data(model, impl="warp", naconmax=WARP_NACONMAX, njmax=WARP_NJMAX)
+        return mjx.make_data(model, impl="warp", naconmax=warp_naconmax(warp_worlds), njmax=WARP_NJMAX)
     return mjx.make_data(m)
+
+
+def world_axis_leaves(d: mjx.Data):
+    """A pytree like `d` of bools: whether each leaf carries the batch (world) axis once `d` is vmapped.
+
+    MJX-JAX: every leaf. MuJoCo Warp keeps its contact buffer and counters once per batch, without a world
+    axis: such leaves are scratch that every step rewrites, so batch plumbing (auto-reset selects, seed
+    axes) must pass them through rather than index them by world."""
+    if getattr(d, "impl", None) != mjx.Impl.WARP:  # MJX-JAX data, or another env's physics state
+        return jax.tree_util.tree_map(lambda _: True, d)
+    from mujoco.mjx._src.types import tree_path_to_attr_str
+    from mujoco.mjx.warp import types as warp_types
+
+    batched = warp_types._BATCH_DIM["Data"]
+    return jax.tree_util.tree_map_with_path(lambda path, _: bool(batched.get(tree_path_to_attr_str(path), True)), d)
 
 
 class SceneIds:

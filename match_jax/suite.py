@@ -80,6 +80,7 @@ class SuiteConfig:
     learning_rate: float | None = None
     gamma: float | None = None
     initial_force_z: float | None = None
+    physics_backend: str = "jax"  # 'jax' (MJX) | 'warp' (MuJoCo Warp) for every run's training and evaluation
 
 
 def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
@@ -101,5 +102,5 @@ def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
     if cfg.initial_force_z is not None:
         ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, initial_force_z=cfg.initial_force_z))
     env = task_config(cfg.task, ppo.control, run.force_law, hole_obs_noise=run.noise_mm / 1000.0,
-                      break_force=run.break_force)
+                      break_force=run.break_force, physics_backend=cfg.physics_backend)
     return RunSpec(ppo=ppo, env=env, num_seeds=cfg.seeds, preset=cfg.preset)

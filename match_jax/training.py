@@ -33,10 +33,10 @@ import numpy as np
 from match_jax import checkpoints
 from match_jax.controllers.action_spaces import ActionConfig
 from match_jax.controllers.osc import ControllerConfig
-from match_jax.envs import FPiHConfig
+from match_jax.envs import FPiHConfig, FPiHEnv
 from match_jax.networks import NetworkConfig
 from match_jax.randomization import ModelRandomization
-from match_jax.ppo import SSL_BETA, PPOConfig, RuntimeValues, Trainer, TrainState, make_env, make_trainer
+from match_jax.ppo import SSL_BETA, PPOConfig, RuntimeValues, Trainer, TrainState, make_trainer
 
 LOGGED = ("iteration", "env_steps", "success_rate", "break_rate", "episodes", "mean_reward", "contact_fraction",
           "loss", "policy_loss", "value_loss", "ssl_loss", "entropy", "approx_kl", "clip_fraction", "p_force",
@@ -104,10 +104,30 @@ def load_spec(run_dir: str | pathlib.Path) -> RunSpec:
         raise RunError(f"{path} is not a valid run config: {err}") from None
 
 
-def batch_mesh(batch: int) -> jax.sharding.Mesh | None:
-    """A 1-D mesh ('envs') over the most local devices that divide `batch` evenly; None if that is one.
+def make_env(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv:
+    """The fPiH env a method trains on; `env_config` (task settings, None: the method's default) must use
+    the method's controller."""
+    env_config = env_config or FPiHConfig(control=ppo.control)
+    if env_config.control != ppo.control:
+        raise ValueError(f"method {ppo.method!r} needs control={ppo.control!r}, env has {env_config.control!r}")
+    return FPiHEnv(env_config)
+
+
+def sized_for_batch(env_config: FPiHConfig, worlds: int) -> FPiHConfig:
+    """`env_config` for vmapped calls of up to `worlds` envs: on MuJoCo Warp its shared contact buffer
+    is sized for them (`FPiHConfig.warp_worlds`); on MJX-JAX it is returned unchanged."""
+    if env_config.physics_backend != "warp":
+        return env_config
+    return dataclasses.replace(env_config, warp_worlds=int(worlds))
+
+
+def batch_mesh(batch: int, physics_backend: str = "jax") -> jax.sharding.Mesh | None:
+    """A 1-D mesh ('envs') over the most local devices that divide `batch` evenly; None if that is one,
+    or for MuJoCo Warp, which steps its batch on one device here (its contact buffer is shared by the batch).
 
     On a CPU-only machine `import match_jax` gives JAX one CPU device per core (`match_jax._xla`)."""
+    if physics_backend == "warp":
+        return None
     devices = jax.devices()
     count = max(n for n in range(1, len(devices) + 1) if batch % n == 0)
     return None if count == 1 else jax.sharding.Mesh(np.array(devices[:count]), ("envs",))
@@ -121,12 +141,12 @@ def shard_batch(x: jax.Array, axis: int, mesh: jax.sharding.Mesh | None) -> jax.
     return jax.device_put(x, jax.sharding.NamedSharding(mesh, spec))
 
 
-def shard_envs(state: TrainState) -> TrainState:
+def shard_envs(state: TrainState, physics_backend: str = "jax") -> TrainState:
     """Place the env axis (axis 1 of env_state leaves) across local devices; the rest is replicated.
 
     Uses `batch_mesh(num_envs)`; a no-op on one device. The jitted chunk then runs SPMD over the
     devices (jax.sharding)."""
-    mesh = batch_mesh(state.episode_success.shape[1])
+    mesh = batch_mesh(state.episode_success.shape[1], physics_backend)
     if mesh is None:
         return state
     replicated = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())
@@ -148,7 +168,7 @@ class Programs:
 
     def __init__(self, ppo: PPOConfig, env_config: FPiHConfig | None):
         self.env = make_env(ppo, env_config)
-        self.trainer: Trainer = make_trainer(ppo, self.env, batch_mesh(ppo.num_envs))
+        self.trainer: Trainer = make_trainer(ppo, self.env, batch_mesh(ppo.num_envs, self.env.config.physics_backend))
         self.init = jax.jit(self.trainer.init)
         self.chunk = jax.jit(self.trainer.train_chunk, donate_argnums=0)
         self._shapes: dict[int, TrainState] = {}
@@ -193,9 +213,11 @@ class Run:
     def __init__(self, spec: RunSpec, run_dir: str | pathlib.Path):
         self.spec = spec
         self.dir = pathlib.Path(run_dir)
-        self.programs = programs(spec.ppo, spec.env)
+        env_config = sized_for_batch(spec.env or FPiHConfig(control=spec.ppo.control),
+                                     spec.ppo.num_envs * spec.num_seeds)  # the seeds step as one batch
+        self.programs = programs(spec.ppo, env_config)
         self.values = RuntimeValues.of(spec.ppo, spec.env)
-        self.env = make_env(spec.ppo, spec.env)  # the run's own task settings (the programs' are fixed)
+        self.env = make_env(spec.ppo, env_config)  # the run's own task settings (the programs' are fixed)
         self.trainer: Trainer = self.programs.trainer
 
     def initial_state(self) -> TrainState:
@@ -369,7 +391,7 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         _truncate_metrics(run_dir / "metrics.jsonl", int(np.asarray(state.iteration)[0]))
     else:
         state = run.initial_state()
-    state = shard_envs(state)
+    state = shard_envs(state, run.env.config.physics_backend)
     best = [(checkpoints.read_best_record(run_dir, i) or {}).get("success_rate", -1.0) for i in range(spec.num_seeds)]
 
     chunks_total = -(-ppo.num_iterations // ppo.iterations_per_chunk)

@@ -321,7 +321,7 @@ def test_several_seeds_initialise_without_deadlock():
     """cpu preset, 3 seeds: the initial state must become ready. A vmap over seeds made the orthogonal
     initialisers one batched LAPACK QR, which deadlocked XLA's CPU thread pool in most tries."""
     code = ("import match_jax, jax\n"
-            "from match_jax.ppo import make_env, make_trainer\n"
+            "from match_jax.ppo import make_trainer\nfrom match_jax.training import make_env\n"
             "from match_jax.presets import get_preset\n"
             "ppo = get_preset('cpu', method='match')\n"
             "trainer = make_trainer(ppo, make_env(ppo))\n"

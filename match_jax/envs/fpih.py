@@ -54,6 +54,9 @@ class FPiHConfig:
     control: str = "hybrid"  # 'pose' | 'vices' | 'hybrid'
     scene_file: str = ""  # MJCF path; "" = the packaged fpih_scene.xml
     physics_backend: str = "jax"  # 'jax' (MJX) | 'warp' (MuJoCo Warp; pip install "match_jax[warp]")
+    # MuJoCo Warp only: the most envs one vmapped reset/step holds (its contact buffer is shared by the
+    # batch: sim.warp_naconmax). The trainer and the evaluator set it to their batch sizes.
+    warp_worlds: int = 1024
     controller: ControllerConfig = ControllerConfig()
     actions: ActionConfig = ActionConfig()
     # Timing: policy 15 Hz, control law 120 Hz, physics `physics_substeps` x 120 Hz.
@@ -111,7 +114,7 @@ class FPiHConfig:
             raise ValueError(f"physics_backend must be one of {sim.PHYSICS_BACKENDS}, got {self.physics_backend!r}")
         if not (isinstance(self.break_force, (int, float)) and self.break_force > 0):
             raise ValueError(f"break_force must be > 0 N (math.inf for unbreakable), got {self.break_force!r}")
-        for name in ("control_substeps", "physics_substeps", "episode_steps", "ik_iterations"):
+        for name in ("control_substeps", "physics_substeps", "episode_steps", "ik_iterations", "warp_worlds"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
                 raise ValueError(f"{name} must be an integer >= 1, got {value!r}")
@@ -315,7 +318,7 @@ class FPiHEnv(BraxEnv):
         hand_yaw = jax.random.uniform(k_hand, (), minval=-cfg.hand_yaw_range, maxval=cfg.hand_yaw_range)
         hole_obs_offset = self._noise(k_obs, self._hole_obs_noise, cfg.hole_obs_noise_type, (3,))
 
-        data = sim.make_data(self.mj_model, self.mjx_model)
+        data = sim.make_data(self.mj_model, self.mjx_model, self.config.warp_worlds)
         half = 0.5 * hole_yaw
         data = data.replace(
             mocap_pos=data.mocap_pos.at[self.ids.hole_mocap].set(hole_pos),

@@ -11,6 +11,8 @@ import jax
 import jax.numpy as jnp
 from brax.envs.base import State
 
+from match_jax import sim
+
 
 # Info keys that describe the finished transition (kept for the learner and the metrics); every
 # other key is replaced by the fresh episode's value when an env resets.
@@ -55,8 +57,12 @@ class AutoResetEnv:
             for key in fresh.info:
                 if key not in TRANSITION_KEYS:
                     info[key] = jax.tree_util.tree_map(pick, fresh.info[key], s.info[key])  # e.g. info['model']
-            return s.replace(pipeline_state=jax.tree_util.tree_map(pick, fresh.pipeline_state, s.pipeline_state),
-                             obs=jax.tree_util.tree_map(pick, fresh.obs, s.obs), info=info)
+            # MuJoCo Warp's once-per-batch scratch leaves (no world axis) pass through.
+            pipeline_state = jax.tree_util.tree_map(lambda new, old, world: pick(new, old) if world else old,
+                                                    fresh.pipeline_state, s.pipeline_state,
+                                                    sim.world_axis_leaves(s.pipeline_state))
+            return s.replace(pipeline_state=pipeline_state, obs=jax.tree_util.tree_map(pick, fresh.obs, s.obs),
+                             info=info)
 
         next_state = jax.lax.cond(jnp.any(done), reset_finished, lambda s: s, next_state)
         next_state.info["final_obs"] = final_obs
