@@ -156,8 +156,12 @@ def test_wrist_reading_equals_the_contact_force_at_rest_and_reads_less_at_impact
     # accelerates (0.75 kg x ~1 m/s^2), never the 7.3 N weight of the hand and peg
     free = np.linalg.norm(contact, axis=-1) == 0
     assert free[:3].all() and np.abs(wrist[free]).max() < 1.5
-    # pressed and settled (last 10 steps): the wrist reads the contact force within 2 % + 0.05 N
-    np.testing.assert_allclose(wrist[-10:], contact[-10:], rtol=0.02, atol=0.05)
+    # pressed and settled (last 10 steps): the wrist reads the contact force within 2 % + 0.05 N. MJX-JAX
+    # may drop the contact for a physics step (seen with mujoco 4.0.1: one step ends with no contact force
+    # while the wrist still reads 0.2 N of the arm's decaying push); such a step is not at rest.
+    pressed = np.linalg.norm(contact[-10:], axis=-1) > 0.5
+    assert pressed.sum() >= 8
+    np.testing.assert_allclose(wrist[-10:][pressed], contact[-10:][pressed], rtol=0.02, atol=0.05)
     assert contact[-1, 2] < -0.5
     # the impact: the peak of the contact force is far above anything the wrist reads at a step's end
     first = int(np.argmax(peak > 1.0))
