@@ -58,6 +58,23 @@ def measure(backend: str, batch: int, steps: int, press_steps: int, rounds: int)
             "contact_fraction": float(jnp.mean(states.info["in_contact"]))}
 
 
+def row_of(backend: str, batch: int, args, late: bool) -> dict:
+    """The printed result row of one measurement: measured, its one-line error, or skipped when late."""
+    if late:
+        row = {"backend": backend, "batch": batch, "skipped": "deadline"}
+        print(f"{backend:5s} {batch:6d} envs: skipped (deadline)", flush=True)
+        return row
+    try:
+        row = measure(backend, batch, args.steps, args.press_steps, args.rounds)
+    except Exception as err:  # noqa: BLE001  (recorded, the other measurements go on)
+        row = {"backend": backend, "batch": batch, "error": f"{type(err).__name__}: {str(err).splitlines()[0]}"}
+        print(f"{backend:5s} {batch:6d} envs: {row['error']}", flush=True)
+        return row
+    print(f"{backend:5s} {batch:6d} envs: {row['env_steps_per_s']:10.0f} env steps/s "
+          f"(compile {row['compile_s']:.0f} s, contact {100 * row['contact_fraction']:.0f} %)", flush=True)
+    return row
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--backends", default=",".join(BACKENDS))
@@ -78,16 +95,7 @@ def main(argv=None) -> int:
     start, rows = time.perf_counter(), []
     for batch in batches:
         for backend in backends:
-            if time.perf_counter() - start > args.deadline_s:
-                rows.append({"backend": backend, "batch": batch, "skipped": "deadline"})
-                continue
-            try:
-                row = measure(backend, batch, args.steps, args.press_steps, args.rounds)
-                print(f"{backend:5s} {batch:6d} envs: {row['env_steps_per_s']:10.0f} env steps/s "
-                      f"(compile {row['compile_s']:.0f} s, contact {100 * row['contact_fraction']:.0f} %)", flush=True)
-            except Exception as err:  # noqa: BLE001  (recorded, the other measurements go on)
-                row = {"backend": backend, "batch": batch, "error": f"{type(err).__name__}: {str(err).splitlines()[0]}"}
-                print(f"{backend:5s} {batch:6d} envs: {row['error']}", flush=True)
+            row = row_of(backend, batch, args, late=time.perf_counter() - start > args.deadline_s)
             rows.append(row)
             if args.json:
                 args.json.write_text(json.dumps({"device": str(jax.devices()[0]), "rows": rows}, indent=1))
