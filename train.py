@@ -144,7 +144,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         from match_jax import sim
 
         if not sim.warp_installed():
-            parser.error('--physics-backend warp needs NVIDIA Warp: pip install "match_jax[warp]"')
+            parser.error(f"--physics-backend warp {sim.WARP_MISSING}")
     for name in ("seeds", "total_steps", "num_envs", "max_chunks", "rollout_steps", "epochs", "minibatches",
                  "iterations_per_chunk", "actor_hidden", "critic_hidden"):
         value = getattr(args, name)

@@ -245,7 +245,7 @@ def parse_args(argv=None) -> SuiteConfig:
         from match_jax import sim
 
         if not sim.warp_installed():
-            parser.error('--physics-backend warp needs NVIDIA Warp: pip install "match_jax[warp]"')
+            parser.error(f"--physics-backend warp {sim.WARP_MISSING}")
     common = dict(out=args.out, export=args.export, only=only, selection_in_ratio=not args.selection_not_in_ratio,
                   task=args.task, learning_rate=args.learning_rate, gamma=args.gamma,
                   initial_force_z=args.initial_force_z, physics_backend=args.physics_backend,

@@ -75,6 +75,9 @@ def add_peg_force_sensors(spec: mujoco.MjSpec) -> mujoco.MjSpec:
     return spec
 
 
+WARP_MISSING = 'needs NVIDIA Warp: pip install "match_jax[warp]"'
+
+
 def warp_installed() -> bool:
     """Whether MuJoCo Warp can run here (the `warp` extra)."""
     return bool(_mjx_warp.WARP_INSTALLED)
@@ -87,7 +90,7 @@ def put_model(model: mujoco.MjModel, physics_backend: str = "jax") -> mjx.Model:
     if physics_backend != "warp":
         raise ValueError(f"physics_backend must be one of {PHYSICS_BACKENDS}, got {physics_backend!r}")
     if not warp_installed():
-        raise ImportError('physics_backend="warp" needs NVIDIA Warp: pip install "match_jax[warp]"')
+        raise ImportError(f'physics_backend="warp" {WARP_MISSING}')
     return mjx.put_model(model, impl="warp")
 
 
