@@ -13,7 +13,8 @@ methods=${3:-match pose hybrid}
 mkdir -p "$runs"
 for method in $methods; do
   dir="$runs/$method"
-  if [ -f "$dir/config.json" ]; then
+  # A run resumes from its latest checkpoint; a directory without one (stopped before its first) starts again.
+  if compgen -G "$dir/checkpoints/latest/*/commit_success.txt" > /dev/null; then
     python train.py --resume --total-steps "$steps" --out "$dir" --no-progress
   else
     python train.py --method "$method" --preset cpu --seeds 3 --total-steps "$steps" --learning-rate 1e-3 \

@@ -367,7 +367,11 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     plots.noise_robustness({SUITE[n].label: [r for r in g if r["noise_type"] == kind] for n, g in results.items()},
                            out / "noise_robustness.png")
     profiles = {SUITE[n].label: _table1_row(g)["selection_profile"] for n, g in results.items() if n in HYBRID}
-    plots.selection_profile(profiles, out / "selection_profile.png")
+    stale_profile = out / "selection_profile.png"
+    if profiles:
+        plots.selection_profile(profiles, stale_profile)
+    elif stale_profile.exists():
+        stale_profile.unlink()  # no hybrid run evaluated: an earlier figure would describe other runs
 
     preset = get_preset(cfg.preset)
     lines = [
@@ -388,8 +392,10 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     lines += _learning_lines(curves, results) + _early_lines(curves, results) + _claims_lines(results, {n: c for n, c in curves.items() if n in results})
     lines += ["", "## Figures", "", "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
               "- `noise_robustness.png`: success and break rate vs the noise sweep's level, breakable and unbreakable (error bars: "
-              "standard error over seeds)",
-              "- `selection_profile.png`: P(force) per axis over approach / contact / insertion (time-normalised)", ""]
+              "standard error over seeds)"]
+    if profiles:
+        lines += ["- `selection_profile.png`: P(force) per axis over approach / contact / insertion (time-normalised)"]
+    lines += [""]
     path = out / "REPORT.md"
     path.write_text("\n".join(lines))
     return path

@@ -226,6 +226,7 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     assert "| 75.0 | 100.0 | 64 / 64 |" in report  # Pose: final, best success and where each seed's best is
     assert "| MATCH learns as fast as Pose (env steps to 80 % training success) | not run |" in report
     assert "| Pose | 10.0 | - / - / - | 10.0 | - / - / - |" in report  # early training: 64 steps trained
+    assert not (out / "selection_profile.png").exists() and "selection_profile" not in report  # no hybrid run yet
     # the same command without the budget resumes MATCH, finishes and evaluates it, and exports the suite
     assert experiments.main(smoke + ["--only", "pose,match", "--export", str(shipped)]) == 0
     assert trained[3:] == [("pose", True, 2), ("match", True, 2)]
