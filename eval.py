@@ -143,7 +143,7 @@ def render_episode(args) -> None:
         from match_jax.ppo import deterministic_policy
         from match_jax.training import load_policy
 
-        run, policy_params = load_policy(args.run_dir, 0, args.checkpoint)
+        run, policy_params = load_policy(args.run_dir, 0, args.checkpoint, args.physics_backend)
         env = run.env
         policy, policy_state = deterministic_policy(run.trainer), (policy_params["params"], policy_params["policy_stats"])
         title = f"{args.run_dir} (seed index 0, {args.checkpoint} checkpoint)"

@@ -52,7 +52,7 @@ class RunSpec:
     """Everything that defines a run: the learner, the task, how many seeds and the base seed."""
 
     ppo: PPOConfig = PPOConfig()
-    env: FPiHConfig | None = None  # None: FPiHConfig(control=ppo.control) (the paper's task)
+    env: FPiHConfig | None = None  # None: default_env_config(ppo) (the paper's task)
     num_seeds: int = 1
     seed: int = 0
     preset: str = ""
@@ -61,7 +61,7 @@ class RunSpec:
         if not (isinstance(self.num_seeds, int) and self.num_seeds >= 1):
             raise ValueError(f"num_seeds must be an integer >= 1, got {self.num_seeds!r}")
         if self.env is None:
-            object.__setattr__(self, "env", FPiHConfig(control=self.ppo.control))
+            object.__setattr__(self, "env", default_env_config(self.ppo))
         if self.env.control != self.ppo.control:
             raise ValueError(f"method {self.ppo.method!r} needs env control {self.ppo.control!r}, "
                              f"got {self.env.control!r}")
@@ -104,10 +104,15 @@ def load_spec(run_dir: str | pathlib.Path) -> RunSpec:
         raise RunError(f"{path} is not a valid run config: {err}") from None
 
 
+def default_env_config(ppo: PPOConfig) -> FPiHConfig:
+    """The task a method trains on unless told otherwise: the paper's task with the method's controller."""
+    return FPiHConfig(control=ppo.control)
+
+
 def make_env(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> FPiHEnv:
     """The fPiH env a method trains on; `env_config` (task settings, None: the method's default) must use
     the method's controller."""
-    env_config = env_config or FPiHConfig(control=ppo.control)
+    env_config = env_config or default_env_config(ppo)
     if env_config.control != ppo.control:
         raise ValueError(f"method {ppo.method!r} needs control={ppo.control!r}, env has {env_config.control!r}")
     return FPiHEnv(env_config)
@@ -187,7 +192,7 @@ def program_config(ppo: PPOConfig, env_config: FPiHConfig | None = None) -> tupl
     only sets how many iterations the host runs) and the `RuntimeValues` (SSL weight of the 'joint'
     phase, break force, hole-observation noise). Configurations with the same program_config share
     their compiled programs; a Run passes its own values (`RuntimeValues.of`)."""
-    env_config = FPiHConfig(control=ppo.control) if env_config is None else env_config
+    env_config = default_env_config(ppo) if env_config is None else env_config
     fixed = {"total_steps": PPOConfig.total_steps}
     if ppo.ssl_phase == "joint" and ppo.method in ("hybrid", "match"):
         fixed["ssl_coef"] = SSL_BETA  # any weight > 0 keeps the term in the loss; its value is an argument
@@ -213,8 +218,7 @@ class Run:
     def __init__(self, spec: RunSpec, run_dir: str | pathlib.Path):
         self.spec = spec
         self.dir = pathlib.Path(run_dir)
-        env_config = sized_for_batch(spec.env or FPiHConfig(control=spec.ppo.control),
-                                     spec.ppo.num_envs * spec.num_seeds)  # the seeds step as one batch
+        env_config = sized_for_batch(spec.env, spec.ppo.num_envs * spec.num_seeds)  # the seeds step as one batch
         self.programs = programs(spec.ppo, env_config)
         self.values = RuntimeValues.of(spec.ppo, spec.env)
         self.env = make_env(spec.ppo, env_config)  # the run's own task settings (the programs' are fixed)
@@ -485,10 +489,13 @@ def _fmt_mean(rows: list[dict], key: str) -> str:
     return f"{100 * sum(values) / len(values):.0f}%" if values else "-"
 
 
-def _policy_run(run_dir: str | pathlib.Path, which: str) -> Run:
+def _policy_run(run_dir: str | pathlib.Path, which: str, physics_backend: str | None = None) -> Run:
     if which not in ("best", "latest"):
         raise RunError(f"checkpoint must be 'best' or 'latest', got {which!r}")
-    return Run(load_spec(run_dir), run_dir)
+    spec = load_spec(run_dir)
+    if physics_backend is not None:  # the policies do not depend on it; the Run's env does
+        spec = dataclasses.replace(spec, env=dataclasses.replace(spec.env, physics_backend=physics_backend))
+    return Run(spec, run_dir)
 
 
 def _restore_policies(run: Run, which: str, seed_indices) -> list[dict]:
@@ -570,17 +577,21 @@ def _load_actor(run: Run, seed_index: int) -> dict:
     return {"params": {"actor": tree["actor"]}, "policy_stats": tree["policy_stats"]}
 
 
-def load_policies(run_dir: str | pathlib.Path, which: str = "best") -> tuple[Run, list[dict]]:
+def load_policies(run_dir: str | pathlib.Path, which: str = "best",
+                  physics_backend: str | None = None) -> tuple[Run, list[dict]]:
     """(Run, [{'params', 'policy_stats', 'critic_stats'} per seed]) from the seeds' best checkpoints or
-    the latest one; the Run (env, trainer) is built once for all seeds. From an exported run
-    (`export_actors`): [{'params': {'actor'}, 'policy_stats'}], the best actors only."""
-    run = _policy_run(run_dir, which)
+    the latest one; the Run (env, trainer) is built once for all seeds, its env on `physics_backend`
+    ('jax' | 'warp'; None: the run's own). From an exported run (`export_actors`):
+    [{'params': {'actor'}, 'policy_stats'}], the best actors only."""
+    run = _policy_run(run_dir, which, physics_backend)
     return run, _restore_policies(run, which, range(run.spec.num_seeds))
 
 
-def load_policy(run_dir: str | pathlib.Path, seed_index: int, which: str = "best") -> tuple[Run, dict]:
-    """(Run, {'params', 'policy_stats', 'critic_stats'}) of one seed, from its best or the latest checkpoint."""
-    run = _policy_run(run_dir, which)
+def load_policy(run_dir: str | pathlib.Path, seed_index: int, which: str = "best",
+                physics_backend: str | None = None) -> tuple[Run, dict]:
+    """(Run, {'params', 'policy_stats', 'critic_stats'}) of one seed, from its best or the latest
+    checkpoint; the Run's env on `physics_backend` (None: the run's own)."""
+    run = _policy_run(run_dir, which, physics_backend)
     if not 0 <= seed_index < run.spec.num_seeds:
         raise RunError(f"seed index {seed_index} out of range: {run_dir} has {run.spec.num_seeds} seeds")
     return run, _restore_policies(run, which, [seed_index])[0]

@@ -3,6 +3,7 @@
 import copy
 import dataclasses
 import importlib.util
+import pathlib
 import types
 
 import jax
@@ -79,6 +80,30 @@ def test_train_on_warp_without_warp_is_a_one_line_error(capsys):
         train.parse_args(["--method", "pose", "--physics-backend", "warp", "--out", "/tmp/unused"])
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert err.endswith('--physics-backend warp needs NVIDIA Warp: pip install "match_jax[warp]"')
+
+
+@pytest.mark.skipif(importlib.util.find_spec("warp") is not None, reason="warp is installed")
+def test_a_warp_run_loads_its_policies_on_mjx_jax_without_warp(tmp_path):
+    """A run trained on Warp (here: the shipped Pose actors, relabelled) evaluates on MJX-JAX on a
+    machine without Warp: its policies do not depend on the physics backend."""
+    import json
+    import shutil
+
+    from match_jax.training import load_policies, load_spec
+
+    shipped = pathlib.Path(__file__).parents[1] / "results" / "authors_task" / "runs" / "pose"
+    run_dir = shutil.copytree(shipped, tmp_path / "pose_on_warp")
+    config = json.loads((run_dir / "config.json").read_text())
+    config["env"]["physics_backend"] = "warp"
+    (run_dir / "config.json").write_text(json.dumps(config))
+    assert load_spec(run_dir).env.physics_backend == "warp"
+    with pytest.raises(ImportError, match="needs NVIDIA Warp"):
+        load_policies(run_dir)
+    run, policies = load_policies(run_dir, physics_backend="jax")
+    assert run.env.config.physics_backend == "jax" and len(policies) == 3
+    _, own = load_policies(shipped)
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree_util.tree_leaves(policies),
+                                                    jax.tree_util.tree_leaves(own)))
 
 
 # Pose control from the spawn pose: 3 policy steps sideways, then down at a_z = -0.5 (target 1 cm below
