@@ -35,7 +35,7 @@ if [ "${SMOKE:-0}" = 1 ]; then PRESET=tiny; PAPER_PRESET=tiny; STEPS=64; fi
 mkdir -p "$WORK/logs" "$PACK"
 source "$(dirname "$0")/gpu_common.sh"
 gpu_start
-NAMES=${ONLY:-pose,vices,hybrid,match,match_literal,match_nossl,hybrid_nossl,pose_noise2.5,pose_unbreakable,vices_unbreakable,hybrid_unbreakable,match_unbreakable}
+NAMES=${ONLY:-pose,vices,hybrid,match,match_damped,match_nossl,hybrid_nossl,pose_noise2.5,pose_unbreakable,vices_unbreakable,hybrid_unbreakable,match_unbreakable}
 for name in ${NAMES//,/ }; do
   timeout "$KILL_AT" python -m match_jax.experiments --preset "$PRESET" --seeds "$SEEDS" --total-steps "$STEPS" \
     "${RATIO_ARGS[@]}" --out "$WORK/suite" --only "$name" --train-only --time-budget-min "$BUDGET_MIN" \

@@ -38,7 +38,7 @@ from match_jax.envs.tasks import TASKS
 from match_jax.evaluation import evaluate_run_grid
 from match_jax.report import (_table1_lines, _unbreakable_lines, early_training, episode_window,  # noqa: F401
                               learning_curves, metric_arrays, write_report)
-from match_jax.suite import (HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, SuiteRun, run_spec,  # noqa: F401
+from match_jax.suite import (HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, SuiteRun, run_spec, suite_runs,  # noqa: F401
                              sweep_noise_type, unbreakable)
 from match_jax.training import (ACTORS_DIR, RunError, RunSpec, actor_path, best_record, export_actors, is_exported,
                                 load_spec, read_metrics, record_path, train)
@@ -197,7 +197,9 @@ def parse_args(argv=None) -> SuiteConfig:
     parser.add_argument("--total-steps", type=int, default=None)
     parser.add_argument("--episodes", type=int, default=100, help="Table 1 episodes per seed (every setting runs max(--episodes, --sweep-episodes))")
     parser.add_argument("--sweep-episodes", type=int, default=500, help="noise-sweep episodes per seed")
-    parser.add_argument("--only", default=",".join(SUITE), help=f"comma-separated subset of {list(SUITE)}")
+    parser.add_argument("--only", default=None,
+                        help=f"comma-separated subset of {list(SUITE)} (default: every run of the --task; "
+                             "match_literal on the earlier task, match_damped on the authors')")
     parser.add_argument("--time-budget-min", type=float, default=None,
                         help="per run: stop training after the chunk that ends past this many minutes (resumable)")
     parser.add_argument("--skip-training", action="store_true",
@@ -214,7 +216,7 @@ def parse_args(argv=None) -> SuiteConfig:
     parser.add_argument("--learning-rate", type=float, default=None, help="Adam step size of every run (preset's)")
     parser.add_argument("--gamma", type=float, default=None, help="discount per policy step of every run (preset's)")
     parser.add_argument("--initial-force-z", type=float, default=None,
-                        help="hybrid runs: the untrained policy's force-z target, N (preset's: -1)")
+                        help="hybrid runs: the untrained policy's force-z target, N (preset's)")
     parser.add_argument("--physics-backend", choices=["jax", "warp"], default="jax",
                         help="physics of every run: MJX's JAX backend or MuJoCo Warp (pip install 'match_jax[warp]')")
     parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
@@ -222,10 +224,13 @@ def parse_args(argv=None) -> SuiteConfig:
                         help="MATCH (with SSL) leaves the selection term out of the PPO ratio (the authors' code); "
                              "MATCH no-SSL keeps it, as its selection has no other training signal")
     args = parser.parse_args(argv)
-    only = tuple(x for x in args.only.split(",") if x)
+    only = suite_runs(args.task) if args.only is None else tuple(x for x in args.only.split(",") if x)
     unknown = [x for x in only if x not in SUITE]
     if unknown or not only:
         parser.error(f"--only takes names from {list(SUITE)}, got {args.only!r}")
+    duplicates = [x for x in only if x not in suite_runs(args.task)]
+    if duplicates:
+        parser.error(f"--only: {', '.join(duplicates)} is match on the {args.task} task (its force law is the task's)")
     for name in ("seeds", "episodes", "sweep_episodes", "total_steps"):
         value = getattr(args, name)
         if value is not None and value < 1:

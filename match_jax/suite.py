@@ -8,7 +8,7 @@ import math
 import pathlib
 from typing import NamedTuple
 
-from match_jax.envs.tasks import task_config
+from match_jax.envs.tasks import TASKS, task_config
 from match_jax.presets import get_preset
 from match_jax.training import RunSpec
 
@@ -29,6 +29,7 @@ SUITE = {
     "hybrid": SuiteRun("Hybrid-Basic", "hybrid", True, 1.0, 10.0, None),
     "match": SuiteRun("MATCH", "match", True, 1.0, 10.0, None),
     "match_literal": SuiteRun("MATCH (authors' force law)", "match", True, 1.0, 10.0, "literal"),
+    "match_damped": SuiteRun("MATCH (damped force law)", "match", True, 1.0, 10.0, "damped"),
     "match_nossl": SuiteRun("MATCH (no SSL)", "match", False, 1.0, 10.0, None),
     "hybrid_nossl": SuiteRun("Hybrid-Basic (no SSL)", "hybrid", False, 1.0, 10.0, None),
     "pose_noise2.5": SuiteRun("Pose (trained at 2.5 mm)", "pose", True, 2.5, 10.0, None),
@@ -51,6 +52,18 @@ def sweep_noise_type(task: str) -> str:
     return "shell" if task == "authors" else "uniform"
 
 
+def suite_runs(task: str) -> tuple[str, ...]:
+    """The suite's runs on task protocol `task`: every run but the force-law variant whose law is the
+    task's own (on it, that run would be `match` trained twice)."""
+    return tuple(name for name, run in SUITE.items() if run.force_law in (None, *_other_laws(task)))
+
+
+def _other_laws(task: str) -> tuple[str, ...]:
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}; choose one of {sorted(TASKS)}")
+    return tuple(law for law in ("literal", "damped") if law != TASKS[task]["force_law"])
+
+
 HYBRID = tuple(name for name, run in SUITE.items() if run.method in ("hybrid", "match"))  # runs with selections
 
 
@@ -68,7 +81,7 @@ class SuiteConfig:
     total_steps: int | None = None
     episodes: int = 100
     sweep_episodes: int = 500
-    only: tuple[str, ...] = tuple(SUITE)
+    only: tuple[str, ...] | None = None  # None: every run of the task (`suite_runs`)
     smoke: bool = False
     selection_in_ratio: bool = True  # MATCH with SSL: False = the authors' code (selection by the SSL only)
     time_budget_min: float | None = None  # per run and call: stop training after this much wall clock
@@ -81,6 +94,15 @@ class SuiteConfig:
     gamma: float | None = None
     initial_force_z: float | None = None
     physics_backend: str = "jax"  # 'jax' (MJX) | 'warp' (MuJoCo Warp) for every run's training and evaluation
+
+    def __post_init__(self):
+        runs = suite_runs(self.task)
+        if self.only is None:
+            object.__setattr__(self, "only", runs)
+        duplicates = [name for name in self.only if name in SUITE and name not in runs]
+        if duplicates:
+            raise ValueError(f"{', '.join(duplicates)} is match on the {self.task!r} task (its force law is the "
+                             f"task's own); the task's suite runs are {list(runs)}")
 
 
 def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:

@@ -90,6 +90,7 @@ def test_check_claims_reads_the_right_runs_and_metrics():
     assert found["MATCH succeeds more often than Pose"].verdict == claims.MISSING
     slower = found["MATCH with the authors' force law learns as fast as Pose (env steps to 80 % training success)"]
     assert slower.verdict == claims.FAILS and slower.numbers == "2.10M vs 1.00M"
+    assert not any("damped force law" in text for text in found)  # that variant's run is not evaluated
     assert found["MATCH breaks less than Pose (10 N, training noise)"].numbers == "0.3 % vs 25.0 %"
     # the noise claim against Pose trained at 2.5 mm reads that run's sweep, not Pose's
     wide = found["MATCH degrades less with noise than Pose trained at 2.5 mm (success at +-7.5 mm)"]

@@ -85,22 +85,32 @@ def test_suite_unbreakable_runs_train_without_breaks(tmp_path):
     assert experiments.run_spec("match", cfg).env.break_force == 10.0 and not experiments.unbreakable("match")
 
 
-def test_suite_match_literal_runs_the_authors_force_law_and_only_it(tmp_path):
-    """On the earlier task (damped law by default) the match_literal run differs from match only in its force
-    law; on the authors' task (the default) every run has the authors' law."""
+def test_suite_force_law_variant_is_the_law_the_task_does_not_use(tmp_path):
+    """Each task's suite trains MATCH once more with the force law that is not the task's own, and nothing
+    else differs: match_damped on the authors' task (literal law), match_literal on the earlier one."""
     authors = experiments.parse_args(["--out", str(tmp_path)])
-    assert authors.task == "authors"
-    for name in ("match", "pose", "match_literal"):
+    assert authors.task == "authors" and "match_damped" in authors.only and "match_literal" not in authors.only
+    for name in ("match", "pose"):
         controller = experiments.run_spec(name, authors).env.controller
         assert not controller.force_feedforward and controller.force_damping == (0.0, 0.0, 0.0)
     assert experiments.run_spec("match", authors).env.force_sensor == "wrist"
+    damped = experiments.run_spec("match_damped", authors)
+    assert damped.env.controller.force_feedforward and damped.env.controller.force_damping == (20.0, 20.0, 20.0)
     cfg = experiments.parse_args(["--out", str(tmp_path), "--task", "earlier"])
+    assert "match_literal" in cfg.only and "match_damped" not in cfg.only and len(cfg.only) == len(authors.only)
     literal = experiments.run_spec("match_literal", cfg)
     assert literal.ppo.method == "match" and not literal.env.controller.force_feedforward
     assert literal.env.controller.force_damping == (0.0, 0.0, 0.0)
     default = experiments.run_spec("match", cfg)
     assert default.env.controller.force_feedforward and default.env.controller.force_damping == (20.0, 20.0, 20.0)
     assert dataclasses.replace(literal.env, controller=default.env.controller) == default.env  # nothing else differs
+    assert dataclasses.replace(damped.env, controller=experiments.run_spec("match", authors).env.controller) \
+        == experiments.run_spec("match", authors).env
+    # asking for the run that would train match twice is a one-line error
+    with pytest.raises(SystemExit):
+        experiments.parse_args(["--out", str(tmp_path), "--only", "match,match_literal"])
+    with pytest.raises(ValueError, match="match_literal is match on the 'authors' task"):
+        experiments.SuiteConfig(out=tmp_path, only=("match_literal",))
 
 
 def test_an_evaluation_is_reused_only_for_the_checkpoints_it_evaluated(tmp_path, monkeypatch):
