@@ -1,7 +1,7 @@
 """Evaluate trained policies (a run directory) or a scripted baseline on fragile peg-in-hole.
 
     python eval.py runs/match_cpu --episodes 100 --json results/match_eval.json
-    python eval.py runs/match_cpu --noise-sweep 0,1,2.5,5,7.5 --episodes 500     # uniform +-X mm
+    python eval.py runs/match_cpu --noise-sweep 1,2.5,5,7.5 --episodes 500     # the authors' shells
     python eval.py runs/match_cpu --unbreakable --checkpoint latest
     python eval.py --baseline spiral --episodes 100 --noise-mm 1 --json results/spiral.json
     python eval.py runs/match_cpu --episodes 100 --render results/match_episode.png  # + image strip and GIF

@@ -65,14 +65,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--minibatches", type=int, default=None, help="minibatches per epoch (preset default)")
     parser.add_argument("--iterations-per-chunk", type=int, default=None,
                         help="PPO iterations per jitted call, between logs and checkpoints (preset default)")
-    parser.add_argument("--learning-rate", type=float, default=None, help="Adam step size (default 3e-4)")
+    parser.add_argument("--learning-rate", type=float, default=None, help="Adam step size (default: the preset's, 1e-3 on cpu, 3e-4 on paper and tiny)")
     parser.add_argument("--learning-rate-end", type=float, default=None,
                         help="decay the step size linearly from --learning-rate to this value over the run's budget "
                              "(default: constant)")
     parser.add_argument("--desired-kl", type=float, default=None,
                         help="adapt the step size per minibatch to keep the approximate KL to the rollout policy near "
                              "this value, starting from --learning-rate (default: no adaptation)")
-    parser.add_argument("--gamma", type=float, default=None, help="discount per policy step (default 0.995)")
+    parser.add_argument("--gamma", type=float, default=None, help="discount per policy step (default: the preset's, 0.99 on cpu, 0.995 on paper and tiny)")
     parser.add_argument("--gae-lambda", type=float, default=None, help="GAE lambda (default 0.95)")
     parser.add_argument("--actor-hidden", type=int, default=None, help="actor SimBa width (preset default)")
     parser.add_argument("--actor-blocks", type=int, default=None, help="actor SimBa residual blocks (preset default)")
@@ -85,7 +85,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "(default 0.93, as in the paper)")
     parser.add_argument("--initial-force-z", type=float, default=None,
                         help="hybrid methods: the force-z target (N, < 0 presses down) the untrained policy's mean "
-                             "commands (default -1)")
+                             "commands (default: the preset's, 0 on cpu, -1 on paper and tiny)")
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10; inf = unbreakable)")

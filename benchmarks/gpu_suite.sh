@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One GPU session, time-boxed: train the experiment suite (cpu preset, 3 seeds, every method as its
+# One call on a GPU machine, time-boxed: train the experiment suite (cpu preset, 3 seeds, every method as its
 # own process on the one GPU, so each compiles its own programs) and a paper-preset MATCH run, then
 # pack the run directories so that evaluation (and further training) can go on elsewhere:
 #
