@@ -147,7 +147,7 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
     for pose, pose_label in (("pose", "Pose"), ("pose_noise2.5", "Pose trained at 2.5 mm")):
         for hybrid, label in (("match", "MATCH"), ("hybrid", "Hybrid-Basic")):
             a, b = values(pose, "success_7.5"), values(hybrid, "success_7.5")
-            claims.append(Claim(f"{label} degrades less with noise than {pose_label} (success at +-7.5 mm)",
+            claims.append(Claim(f"{label} degrades less with noise than {pose_label} (success at the 7.5 mm noise level)",
                                 verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
     contact, free = values("match", "force_contact"), values("match", "force_free")
     in_contact = MISSING if not len(_finite(contact)) else HOLDS if _mean(contact) > 0.5 else FAILS
@@ -158,6 +158,6 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
           fmt=lambda x: "-" if math.isnan(_mean(x)) else f"{_mean(x):.2f} N")
     for run, label in (("match_unbreakable", "MATCH"), ("vices_unbreakable", "VICES")):
         a, b = values("pose_unbreakable", "success_unbreakable_7.5"), values(run, "success_unbreakable_7.5")
-        claims.append(Claim(f"Trained unbreakable, {label} is more robust to noise than Pose (success at +-7.5 mm)",
+        claims.append(Claim(f"Trained unbreakable, {label} is more robust to noise than Pose (success at the 7.5 mm noise level)",
                             verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
     return claims

@@ -93,6 +93,6 @@ def test_check_claims_reads_the_right_runs_and_metrics():
     assert not any("damped force law" in text for text in found)  # that variant's run is not evaluated
     assert found["MATCH breaks less than Pose (10 N, training noise)"].numbers == "0.3 % vs 25.0 %"
     # the noise claim against Pose trained at 2.5 mm reads that run's sweep, not Pose's
-    wide = found["MATCH degrades less with noise than Pose trained at 2.5 mm (success at +-7.5 mm)"]
+    wide = found["MATCH degrades less with noise than Pose trained at 2.5 mm (success at the 7.5 mm noise level)"]
     assert wide.verdict == claims.HOLDS and wide.numbers == "40.0 % vs 10.0 %"
-    assert found["MATCH degrades less with noise than Pose (success at +-7.5 mm)"].verdict == claims.MISSING
+    assert found["MATCH degrades less with noise than Pose (success at the 7.5 mm noise level)"].verdict == claims.MISSING
