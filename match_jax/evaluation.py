@@ -29,7 +29,7 @@ from match_jax import analysis, baselines
 from match_jax.envs import FPiHConfig, FPiHEnv
 from match_jax.envs.fpih import BREAK_SAMPLINGS, break_signal
 from match_jax.ppo import PPOConfig, deterministic_policy, make_trainer
-from match_jax.training import batch_mesh, load_policies, load_spec, shard_batch, sized_for_batch
+from match_jax.training import batch_mesh, load_policies, load_spec, on_backend, shard_batch, sized_for_batch
 
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
@@ -323,9 +323,7 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     """
     if not (isinstance(episodes, int) and episodes >= 1):
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
-    spec = load_spec(run_dir)
-    if physics_backend is not None:
-        spec = dataclasses.replace(spec, env=dataclasses.replace(spec.env, physics_backend=physics_backend))
+    spec = on_backend(load_spec(run_dir), physics_backend)
     if noise_specs is None:
         levels = [spec.env.hole_obs_noise * 1000.0] if noise_levels_mm is None else [float(x) for x in noise_levels_mm]
         noise_specs = [(level, noise_type or spec.env.hole_obs_noise_type) for level in levels]

@@ -104,6 +104,13 @@ def load_spec(run_dir: str | pathlib.Path) -> RunSpec:
         raise RunError(f"{path} is not a valid run config: {err}") from None
 
 
+def on_backend(spec: RunSpec, physics_backend: str | None) -> RunSpec:
+    """`spec` with its env on `physics_backend` ('jax' | 'warp'); unchanged for None."""
+    if physics_backend is None:
+        return spec
+    return dataclasses.replace(spec, env=dataclasses.replace(spec.env, physics_backend=physics_backend))
+
+
 def default_env_config(ppo: PPOConfig) -> FPiHConfig:
     """The task a method trains on unless told otherwise: the paper's task with the method's controller."""
     return FPiHConfig(control=ppo.control)
@@ -492,10 +499,7 @@ def _fmt_mean(rows: list[dict], key: str) -> str:
 def _policy_run(run_dir: str | pathlib.Path, which: str, physics_backend: str | None = None) -> Run:
     if which not in ("best", "latest"):
         raise RunError(f"checkpoint must be 'best' or 'latest', got {which!r}")
-    spec = load_spec(run_dir)
-    if physics_backend is not None:  # the policies do not depend on it; the Run's env does
-        spec = dataclasses.replace(spec, env=dataclasses.replace(spec.env, physics_backend=physics_backend))
-    return Run(spec, run_dir)
+    return Run(on_backend(load_spec(run_dir), physics_backend), run_dir)  # the policies do not depend on it
 
 
 def _restore_policies(run: Run, which: str, seed_indices) -> list[dict]:
