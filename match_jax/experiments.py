@@ -96,13 +96,22 @@ def _best_iterations(run_dir: pathlib.Path, seeds: int) -> list:
 
 
 def current_evaluation(cfg: SuiteConfig, name: str) -> list[dict] | None:
-    """OUT/eval/<name>.json if it evaluated the run's current best checkpoints, else None."""
+    """OUT/eval/<name>.json if it evaluated the run's current best checkpoints with the episodes per seed
+    that `cfg` asks for, else None."""
     path = cfg.out / "eval" / f"{name}.json"
     if not path.exists():
         return None
     grid = json.loads(path.read_text())
     best = _best_iterations(cfg.out / "runs" / name, cfg.seeds)
-    return grid if grid and all(r.get("best_iterations") == best for r in grid) else None
+    episodes = _episodes_per_seed(cfg)
+    return grid if grid and all(r.get("best_iterations") == best and r.get("episodes_per_seed") == episodes
+                                for r in grid) else None
+
+
+def _episodes_per_seed(cfg: SuiteConfig) -> int:
+    """Episodes per seed and setting of an evaluation: Table 1 at the training noise (gaussian) and the
+    noise sweep share one compiled rollout, so every setting runs max(episodes, sweep_episodes)."""
+    return max(cfg.episodes, cfg.sweep_episodes)
 
 
 def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
@@ -117,13 +126,11 @@ def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
     if grid is not None:
         return grid
     if path.exists():
-        log(f"[eval] {name}: the best checkpoints changed since {path.name}; evaluating again")
+        log(f"[eval] {name}: {path.name} evaluated other checkpoints or another episode count; evaluating again")
     best = _best_iterations(run_dir, cfg.seeds)
     spec = run_spec(name, cfg)
     start = time.time()
-    # Table 1 at the training noise (gaussian) and the noise sweep share one compiled rollout, so
-    # every setting runs max(episodes, sweep_episodes) episodes per seed.
-    episodes = max(cfg.episodes, cfg.sweep_episodes)
+    episodes = _episodes_per_seed(cfg)
     specs = [(spec.env.hole_obs_noise * 1000.0, "gaussian")] + [(x, sweep_noise_type(cfg.task)) for x in SWEEP_MM]
     grid = evaluate_run_grid(run_dir, episodes, noise_specs=specs, break_forces=sorted({spec.env.break_force, math.inf}))
     for row in grid:
@@ -156,6 +163,10 @@ def run_suite(cfg: SuiteConfig, command: str, log=print) -> dict[str, list[dict]
     if cfg.report_only:
         grids = {name: current_evaluation(cfg, name) for name in cfg.only}
         results = {name: grid for name, grid in grids.items() if grid is not None}
+        for name in cfg.only:
+            if name not in results and (cfg.out / "eval" / f"{name}.json").exists():
+                log(f"[report] {name}: eval/{name}.json evaluated other checkpoints or another episode count than "
+                    f"--episodes/--sweep-episodes ask for; left out")
         log(f"[report] current evaluations: {', '.join(results) or 'none'}")
         return results
     for name in cfg.only:

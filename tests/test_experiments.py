@@ -281,6 +281,15 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     # --report-only checks the runs' settings against the command's: a one-line error, exit 2
     assert experiments.main(smoke + ["--only", "match", "--report-only", "--selection-not-in-ratio"]) == 2
     assert f"error: {out / 'runs' / 'match'} was trained with other settings" in capsys.readouterr().err
+    # another episode count is another evaluation: evaluated again, and left out of a report for the old count
+    cfg = experiments.parse_args(smoke + ["--only", "pose"])
+    assert experiments.current_evaluation(cfg, "pose") is not None
+    more = dataclasses.replace(cfg, sweep_episodes=3)
+    assert experiments.current_evaluation(more, "pose") is None
+    grid = experiments.evaluate_one(more, "pose", log=lambda _: None)
+    assert evaluated[-1] == "pose" and {r["episodes_per_seed"] for r in grid} == {3}
+    assert experiments.main(smoke + ["--only", "pose", "--report-only"]) == 0
+    assert "[report] pose: eval/pose.json evaluated other checkpoints or another episode count" in capsys.readouterr().out
 
 
 def test_early_training_reads_breaks_contact_and_free_space_force_selection():
