@@ -24,6 +24,10 @@ per core; `training.batch_mesh`), in both modes, for the env and for bare mjx.st
 
 runs the measurement once per CPU device count (each in a fresh process with JAX_NUM_CPU_DEVICES
 set, since JAX fixes it at start-up) and writes all rows, tagged `host_devices`, to one JSON.
+
+    python benchmarks/throughput.py --training cpu --method match --seeds 3 --minibatches 8,150
+
+measures each preset once per minibatch count (the update's epochs split into that many gradient steps).
 """
 
 from __future__ import annotations
@@ -117,16 +121,18 @@ def benchmark(batch_sizes, repeats: int, control: str = "hybrid") -> dict:
     return results
 
 
-def benchmark_training(presets, method: str, chunks: int, seeds: int = 1) -> dict:
-    """Training env steps/s (all `seeds` together) at each preset, and the bare env at the same total batch."""
+def benchmark_training(presets, method: str, chunks: int, seeds: int = 1, minibatches=(None,)) -> dict:
+    """Training env steps/s (all `seeds` together) at each preset and minibatch count (None: the preset's),
+    and the bare env at the same total batch."""
     from match_jax.envs import AutoResetEnv
     from match_jax.presets import get_preset
     from match_jax.training import Run, RunSpec, shard_envs
 
     results = {"method": method, "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(),
                "host_devices": len(jax.devices()), "seeds": seeds, "rows": []}
-    for name in presets:
-        ppo = get_preset(name, method=method, iterations_per_chunk=1)
+    for name, count in [(p, m) for p in presets for m in minibatches]:
+        overrides = {} if count is None else {"minibatches": count}
+        ppo = get_preset(name, method=method, iterations_per_chunk=1, **overrides)
         run = Run(RunSpec(ppo=ppo, num_seeds=seeds), "/tmp/unused-benchmark-run")
         state = shard_envs(run.initial_state())
         start = time.perf_counter()
@@ -146,11 +152,12 @@ def benchmark_training(presets, method: str, chunks: int, seeds: int = 1) -> dic
         actions = shard_batch(jnp.tile(run.env.neutral_action(), (batch, 1)), 0, mesh)
         env_fn = jax.jit(lambda s: jax.lax.scan(lambda c, _: (benv.step(c, actions), None), s, None, length=10)[0])
         env_rate = 10 * batch / _timed(env_fn, states, 3)
-        row = {"preset": name, "num_envs": ppo.num_envs, "seeds": seeds, "steps_per_iteration": ppo.steps_per_iteration,
+        row = {"preset": name, "minibatches": ppo.minibatches, "epochs": ppo.epochs, "num_envs": ppo.num_envs, "seeds": seeds, "steps_per_iteration": ppo.steps_per_iteration,
                "first_chunk_s_incl_compile": compile_s, "train_env_steps_per_s": train_rate,
                "env_only_steps_per_s": env_rate, "train_vs_env": train_rate / env_rate}
         results["rows"].append(row)
-        print(f"{name:6s} preset ({seeds} x {ppo.num_envs} envs, {method}): training {train_rate:8.0f} env steps/s | env alone "
+        print(f"{name:6s} preset ({seeds} x {ppo.num_envs} envs, {method}, {ppo.minibatches} minibatches x "
+              f"{ppo.epochs} epochs): training {train_rate:8.0f} env steps/s | env alone "
               f"{env_rate:8.0f} steps/s | ratio {row['train_vs_env']:.2f} | first chunk incl. compile {compile_s:.0f} s",
               flush=True)
     return results
@@ -166,6 +173,8 @@ def main() -> None:
     parser.add_argument("--method", default="match", choices=["pose", "vices", "hybrid", "match"])
     parser.add_argument("--chunks", type=int, default=2, help="timed PPO iterations per preset (--training)")
     parser.add_argument("--seeds", type=int, default=1, help="seeds trained in one program (--training)")
+    parser.add_argument("--minibatches", default=None,
+                        help="comma-separated minibatch counts per epoch (--training; default: the preset's)")
     parser.add_argument("--host-devices", default=None,
                         help="comma-separated CPU device counts: rerun the measurement in a fresh process per count")
     args = parser.parse_args()
@@ -179,7 +188,13 @@ def main() -> None:
         if unknown or args.chunks < 1 or args.seeds < 1:
             parser.error(f"--training takes presets from {sorted(PRESETS)}, --chunks >= 1 and --seeds >= 1, got "
                          f"{args.training!r}, {args.chunks}, {args.seeds}")
-        results = benchmark_training(presets, args.method, args.chunks, args.seeds)
+        try:
+            counts = [int(m) for m in args.minibatches.split(",") if m] if args.minibatches else [None]
+        except ValueError:
+            parser.error(f"--minibatches must be comma-separated integers, got {args.minibatches!r}")
+        if any(m is not None and m < 1 for m in counts) or not counts:
+            parser.error(f"--minibatches must be integers >= 1, got {args.minibatches!r}")
+        results = benchmark_training(presets, args.method, args.chunks, args.seeds, counts)
         _write_json(args.json, results)
         return
     try:
