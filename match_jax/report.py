@@ -117,12 +117,15 @@ _CLAIM_METRICS = {"success": ("gaussian", None, True, "success_rate"), "break": 
                   "success_unbreakable_7.5": ("sweep", 7.5, False, "success_rate")}
 
 
-def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict]) -> list[claims.Claim]:
-    """The paper's qualitative claims on this suite's per-seed evaluations and learning curves."""
+def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict], task: str = "authors") -> list[claims.Claim]:
+    """The paper's qualitative claims on this suite's per-seed evaluations and learning curves. Mean force
+    is the authors' definition on their task (`task='authors'`), ours on the earlier variant."""
     def values(name, metric):
         if name not in results:
             return []
         noise_type, noise_mm, breakable, key = _CLAIM_METRICS[metric]
+        if metric == "force" and task == "authors":
+            key = "authors_mean_force_n"
         row = _table1_row(results[name]) if noise_type == "gaussian" else _row(
             results[name], sweep_type(results[name]), noise_mm, breakable and not unbreakable(name))
         return [] if row is None else [s.get(key) for s in row["per_seed"]]
@@ -344,16 +347,18 @@ def _early_lines(curves: dict[str, dict], results: dict[str, list[dict]]) -> lis
     return lines
 
 
-def _claims_lines(results: dict[str, list[dict]], curves: dict[str, dict]) -> list[str]:
+def _claims_lines(results: dict[str, list[dict]], curves: dict[str, dict], task: str) -> list[str]:
     """The paper's claims with their verdicts at this suite's seeds."""
     lines = ["", "## The paper's claims at this suite's seeds", "",
               "A claim holds when the 95 % interval (Welch) of the difference of the seeds' means lies on its side "
               "of 0, does not hold when it lies on the other side, and is inconclusive otherwise; 'as fast as' "
               f"holds when not significantly slower and within {100 * claims.AS_FAST_MARGIN:g} % in mean. A seed "
               "that never reached 80 % counts at the env steps it trained (shown as >=): a lower bound, so a "
-              "verdict it could overturn reads inconclusive.", "",
+              "verdict it could overturn reads inconclusive. Mean force: "
+              + ("the authors' definition (end-of-step force signal pooled over every step with some axis in "
+                 "contact)." if task == "authors" else "ours (mean contact force per episode)."), "",
               "| claim | verdict | ours |", "|---|---|---|"]
-    lines += [f"| {c.text} | {c.verdict} | {c.numbers} |" for c in suite_claims(results, curves)]
+    lines += [f"| {c.text} | {c.verdict} | {c.numbers} |" for c in suite_claims(results, curves, task)]
     return lines
 
 
@@ -389,7 +394,8 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     lines += _status_lines(cfg, results, curves)
     lines += _table1_lines(results) + _noise_lines(results) + _unbreakable_lines(results) + _selection_lines(results)
     # Learning-speed claims compare finished runs only: a run still training has not had its budget.
-    lines += _learning_lines(curves, results) + _early_lines(curves, results) + _claims_lines(results, {n: c for n, c in curves.items() if n in results})
+    finished = {n: c for n, c in curves.items() if n in results}
+    lines += _learning_lines(curves, results) + _early_lines(curves, results) + _claims_lines(results, finished, cfg.task)
     lines += ["", "## Figures", "", "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
               "- `noise_robustness.png`: success and break rate vs the noise sweep's level, breakable and unbreakable (error bars: "
               "standard error over seeds)"]

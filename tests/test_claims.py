@@ -96,3 +96,19 @@ def test_check_claims_reads_the_right_runs_and_metrics():
     wide = found["MATCH degrades less with noise than Pose trained at 2.5 mm (success at the 7.5 mm noise level)"]
     assert wide.verdict == claims.HOLDS and wide.numbers == "40.0 % vs 10.0 %"
     assert found["MATCH degrades less with noise than Pose (success at the 7.5 mm noise level)"].verdict == claims.MISSING
+
+
+def test_suite_claims_read_the_mean_force_of_the_task_protocol():
+    """The force claim compares the authors' mean force on their task and ours on the earlier variant."""
+    from match_jax import report
+
+    def grid(ours, authors):
+        seeds = [{"mean_force_n": f, "authors_mean_force_n": g} for f, g in zip(ours, authors)]
+        return [{"noise_type": "gaussian", "noise_mm": 1.0, "break_force_n": 10.0, "per_seed": seeds}]
+
+    results = {"pose": grid([0.7, 0.7, 0.7], [1.0, 1.1, 0.9]), "match": grid([0.7, 0.7, 0.7], [3.0, 3.1, 2.9])}
+    text = "Pose applies less mean contact force than MATCH (Pose vs MATCH)"
+    authors = {c.text: c for c in report.suite_claims(results, {}, task="authors")}[text]
+    earlier = {c.text: c for c in report.suite_claims(results, {}, task="earlier")}[text]
+    assert authors.verdict == claims.HOLDS and authors.numbers == "1.00 N vs 3.00 N"
+    assert earlier.verdict == claims.INCONCLUSIVE and earlier.numbers == "0.70 N vs 0.70 N"
