@@ -122,7 +122,7 @@ def test_an_evaluation_is_reused_only_for_the_checkpoints_it_evaluated(tmp_path,
 
     def fake_grid(run_dir, episodes, noise_specs, break_forces):
         calls.append(episodes)
-        return [{"noise_type": "gaussian", "noise_mm": 1.0, "break_force_n": 10.0}]
+        return [{"noise_type": "gaussian", "noise_mm": 1.0, "break_force_n": 10.0, "episodes_per_seed": episodes}]
 
     monkeypatch.setattr(experiments, "evaluate_run_grid", fake_grid)
     assert experiments.evaluate_one(cfg, "match", log=lambda _: None) is None and calls == []  # no checkpoint yet
