@@ -152,7 +152,8 @@ def benchmark_training(presets, method: str, chunks: int, seeds: int = 1, miniba
         actions = shard_batch(jnp.tile(run.env.neutral_action(), (batch, 1)), 0, mesh)
         env_fn = jax.jit(lambda s: jax.lax.scan(lambda c, _: (benv.step(c, actions), None), s, None, length=10)[0])
         env_rate = 10 * batch / _timed(env_fn, states, 3)
-        row = {"preset": name, "minibatches": ppo.minibatches, "epochs": ppo.epochs, "num_envs": ppo.num_envs, "seeds": seeds, "steps_per_iteration": ppo.steps_per_iteration,
+        row = {"preset": name, "minibatches": ppo.minibatches, "epochs": ppo.epochs, "num_envs": ppo.num_envs,
+               "seeds": seeds, "steps_per_iteration": ppo.steps_per_iteration,
                "first_chunk_s_incl_compile": compile_s, "train_env_steps_per_s": train_rate,
                "env_only_steps_per_s": env_rate, "train_vs_env": train_rate / env_rate}
         results["rows"].append(row)
