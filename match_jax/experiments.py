@@ -177,6 +177,8 @@ def run_suite(cfg: SuiteConfig, command: str, log=print) -> dict[str, list[dict]
         if grid is not None:
             results[name] = grid
             write_report(cfg, results, command)
+            if cfg.export is not None:  # each run's results leave as soon as it is evaluated
+                export_suite(cfg, cfg.export, {name: grid}, log)
     return results
 
 
@@ -222,8 +224,8 @@ def parse_args(argv=None) -> SuiteConfig:
                         help="train and evaluate nothing: write the report (and --export) from the evaluations that "
                              "exist and are current, e.g. while the suite trains other runs in another process")
     parser.add_argument("--export", type=pathlib.Path, default=None,
-                        help="after the report, copy it, its figures and, per evaluated run, its evaluation, config, "
-                             "metrics and best actors (no critic or optimizer state) to this folder")
+                        help="copy the report, its figures and, per evaluated run (as soon as it is evaluated), its "
+                             "evaluation, config, metrics and best actors (no critic or optimizer state) to this folder")
     parser.add_argument("--learning-rate", type=float, default=None, help="Adam step size of every run (preset's)")
     parser.add_argument("--gamma", type=float, default=None, help="discount per policy step of every run (preset's)")
     parser.add_argument("--initial-force-z", type=float, default=None,
@@ -285,8 +287,8 @@ def main(argv=None) -> int:
         if not cfg.train_only:
             path = write_report(cfg, results, command)
             print(f"wrote {path}")
-            if cfg.export is not None:
-                export_suite(cfg, cfg.export, results)
+            if cfg.export is not None:  # the final report; the runs' own results were exported as they finished
+                export_suite(cfg, cfg.export, results if cfg.report_only else {})
     except (RunError, CheckpointError) as err:  # a run directory that does not fit the command
         print(f"error: {err}", file=sys.stderr)
         return 2

@@ -226,8 +226,10 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     assert "best training success [50%, none]" in capsys.readouterr().out  # none: no episode ended
     assert not (out / "eval").exists() and not (out / "REPORT.md").exists()
     # a budget stops MATCH after its first iteration: pose (finished) is evaluated, MATCH is not
-    assert experiments.main(smoke + ["--only", "pose,match", "--time-budget-min", "1e-4"]) == 0
+    early = tmp_path / "early"  # a finished run's results are exported as soon as it is evaluated
+    assert experiments.main(smoke + ["--only", "pose,match", "--time-budget-min", "1e-4", "--export", str(early)]) == 0
     assert trained[1:] == [("pose", True, 2), ("match", False, 1)] and evaluated == ["pose"]  # pose: nothing left
+    assert exported == ["pose"] and sorted(p.name for p in (early / "eval").iterdir()) == ["pose.json"]
     report = (out / "REPORT.md").read_text()
     table1 = report.split("## Noise robustness")[0]
     assert "| Pose |" in table1 and "| MATCH |" not in table1
@@ -240,7 +242,7 @@ def test_suite_stages_with_stand_ins_for_training_and_rollouts(tmp_path, monkeyp
     # the same command without the budget resumes MATCH, finishes and evaluates it, and exports the suite
     assert experiments.main(smoke + ["--only", "pose,match", "--export", str(shipped)]) == 0
     assert trained[3:] == [("pose", True, 2), ("match", True, 2)]
-    assert evaluated == ["pose", "match"] and exported == ["pose", "match"]  # pose's evaluation is reused
+    assert evaluated == ["pose", "match"] and exported[1:] == ["pose", "match"]  # pose's evaluation is reused
     _check_report_and_export(out, shipped)
     assert "## Runs in this report" not in (out / "REPORT.md").read_text()  # every run evaluated
     grid = json.loads((out / "eval" / "match.json").read_text())
