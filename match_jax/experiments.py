@@ -103,15 +103,9 @@ def current_evaluation(cfg: SuiteConfig, name: str) -> list[dict] | None:
         return None
     grid = json.loads(path.read_text())
     best = _best_iterations(cfg.out / "runs" / name, cfg.seeds)
-    episodes = _episodes_per_seed(cfg)
+    episodes = cfg.episodes_per_seed
     return grid if grid and all(r.get("best_iterations") == best and r.get("episodes_per_seed") == episodes
                                 for r in grid) else None
-
-
-def _episodes_per_seed(cfg: SuiteConfig) -> int:
-    """Episodes per seed and setting of an evaluation: Table 1 at the training noise (gaussian) and the
-    noise sweep share one compiled rollout, so every setting runs max(episodes, sweep_episodes)."""
-    return max(cfg.episodes, cfg.sweep_episodes)
 
 
 def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
@@ -130,7 +124,7 @@ def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
     best = _best_iterations(run_dir, cfg.seeds)
     spec = run_spec(name, cfg)
     start = time.time()
-    episodes = _episodes_per_seed(cfg)
+    episodes = cfg.episodes_per_seed
     specs = [(spec.env.hole_obs_noise * 1000.0, "gaussian")] + [(x, sweep_noise_type(cfg.task)) for x in SWEEP_MM]
     grid = evaluate_run_grid(run_dir, episodes, noise_specs=specs, break_forces=sorted({spec.env.break_force, math.inf}))
     for row in grid:

@@ -384,7 +384,7 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
         f"Command: `{command}`", "",
         f"Preset `{cfg.preset}`: {preset.num_envs} envs per seed, {cfg.total_steps or preset.total_steps:,} env steps "
         f"per seed, {cfg.seeds} seeds per method. Evaluation: best checkpoint per seed (highest training success "
-        f"rate), deterministic policy, {max(cfg.episodes, cfg.sweep_episodes)} episodes per seed at the training "
+        f"rate), deterministic policy, {cfg.episodes_per_seed} episodes per seed at the training "
         f"noise (gaussian) and at each level of the noise sweep ({SWEEP_TITLES[kind]}). MATCH's selection term is "
         + ("in the PPO ratio (paper's equation)." if cfg.selection_in_ratio else
            "left out of the PPO ratio (authors' code; selection trained by the SSL only); MATCH (no SSL) keeps it "

@@ -95,6 +95,12 @@ class SuiteConfig:
     initial_force_z: float | None = None
     physics_backend: str = "jax"  # 'jax' (MJX) | 'warp' (MuJoCo Warp) for every run's training and evaluation
 
+    @property
+    def episodes_per_seed(self) -> int:
+        """Episodes per seed and setting of an evaluation: Table 1 at the training noise (gaussian) and the
+        noise sweep share one compiled rollout, so every setting runs max(episodes, sweep_episodes)."""
+        return max(self.episodes, self.sweep_episodes)
+
     def __post_init__(self):
         runs = suite_runs(self.task)
         if self.only is None:
