@@ -2,8 +2,9 @@
 
 Per method: N noiseless trials of every seed's policy, then the seed with the most noiseless successes
 (ties: fewer breaks) at each noise shell with M trials. Writes OUT (JSON): per policy and level the
-stand-in's summary (rates with 95 % Wilson intervals, mean / max force, energy). Resumable: levels
-already in OUT are kept.
+stand-in's summary (rates with 95 % Wilson intervals, mean / max force, energy) and its trials
+(`trial_rows`).
+Resumable: levels already in OUT are kept.
 
     python benchmarks/standin_protocol.py --policies match=~/transfer/match --out results/transfer/standin.json
     python benchmarks/standin_protocol.py --policies pose=DIR,match=DIR --noiseless-trials 30 --shell-trials 50 \
@@ -63,7 +64,8 @@ def main(argv=None) -> int:
             if key not in entry["noiseless"]:
                 start = time.time()
                 run = run_trials(path, args.noiseless_trials, 0.0, "shell", seed=0, config=config)
-                entry["noiseless"][key] = {**run["summary"], "wall_clock_s": time.time() - start}
+                entry["noiseless"][key] = {**run["summary"], "wall_clock_s": time.time() - start,
+                                           "trial_rows": run["trials"]}
                 save()
                 print(f"[standin] {method} {key} noiseless: success {run['summary']['success_rate']:.2f}, "
                       f"breaks {run['summary']['broken_rate']:.2f} ({time.time() - start:.0f} s)", flush=True)
@@ -75,7 +77,8 @@ def main(argv=None) -> int:
                 continue
             start = time.time()
             run = run_trials(folder / f"{best}.onnx", args.shell_trials, level, "shell", seed=1, config=config)
-            entry["shells"][f"{level:g}"] = {**run["summary"], "wall_clock_s": time.time() - start}
+            entry["shells"][f"{level:g}"] = {**run["summary"], "wall_clock_s": time.time() - start,
+                                          "trial_rows": run["trials"]}
             save()
             print(f"[standin] {method} {best} shell {level:g} mm: success {run['summary']['success_rate']:.2f}, "
                   f"breaks {run['summary']['broken_rate']:.2f}", flush=True)
