@@ -3,6 +3,7 @@ energy on the MuJoCo C stand-in at each noise level, beside the same policy in t
 (the transfer gap) and the paper's real-robot numbers; the figure; the paper's real-robot claims.
 
     python -m match_jax.transfer_report STANDIN.json --sim pose=POSE_EVAL.json,match=MATCH_EVAL.json --out DIR
+    python -m match_jax.transfer_report STANDIN.json --sim match=SWEEP.json,match=NOISELESS.json --out DIR
 
 STANDIN.json is written by `benchmarks/standin_protocol.py` (noiseless trials of every seed, then the best
 seed on the noise shells). Each EVAL.json is the training simulator's evaluation of the same run (eval.py
@@ -265,13 +266,13 @@ def write_report(standin: dict, sims: dict[str, list[dict]], out: pathlib.Path, 
     return path
 
 
-def _sims(text: str) -> dict[str, pathlib.Path]:
+def _sims(text: str) -> dict[str, list[pathlib.Path]]:
     out = {}
     for item in filter(None, text.split(",")):
         name, _, path = item.partition("=")
         if not name or not path:
             raise argparse.ArgumentTypeError(f"expected METHOD=EVAL.json[,...], got {item!r}")
-        out[name] = pathlib.Path(path).expanduser()
+        out.setdefault(name, []).append(pathlib.Path(path).expanduser())
     return out
 
 
@@ -281,13 +282,13 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("standin", type=pathlib.Path, help="the protocol's JSON (benchmarks/standin_protocol.py)")
     parser.add_argument("--sim", type=_sims, default={}, metavar="METHOD=EVAL.json,...",
-                        help="training-simulator evaluations of the same runs")
+                        help="training-simulator evaluations of the same runs (a method named twice: both files)")
     parser.add_argument("--out", type=pathlib.Path, required=True)
     args = parser.parse_args(argv)
-    for path in [args.standin, *args.sim.values()]:
+    for path in [args.standin, *(p for paths in args.sim.values() for p in paths)]:
         if not path.is_file():
             parser.error(f"no such file: {path}")
-    sims = {m: sim_rows(json.loads(p.read_text())) for m, p in args.sim.items()}
+    sims = {m: [row for p in paths for row in sim_rows(json.loads(p.read_text()))] for m, paths in args.sim.items()}
     try:
         path = write_report(json.loads(args.standin.read_text()), sims, args.out,
                             "python -m match_jax.transfer_report " + " ".join(sys.argv[1:] if argv is None else argv))

@@ -83,14 +83,17 @@ def test_the_report_and_its_figure(tmp_path):
     standin = {"config": {"no_perturbation": False},
                "match": _entry([29, 48, 44, 40, 38]), "vices": _entry([27, 47, 42, 39, 36], force=3.0, max_force=14.0)}
     sim = tmp_path / "match_sim.json"
-    sim.write_text(json.dumps({"noise_sweep": [_sim_row(lv, "shell", [0.9, 0.8]) for lv in (0.0, 1.0, 2.5)]}))
+    sim.write_text(json.dumps({"noise_sweep": [_sim_row(lv, "shell", [0.9, 0.8]) for lv in (1.0, 2.5)]}))
+    noiseless = tmp_path / "match_sim_noiseless.json"  # a second file for the same method
+    noiseless.write_text(json.dumps(_sim_row(0.0, "gaussian", [0.9, 0.7])))
     (tmp_path / "standin.json").write_text(json.dumps(standin))
-    assert transfer_report.main([str(tmp_path / "standin.json"), "--sim", f"match={sim}",
+    assert transfer_report.main([str(tmp_path / "standin.json"), "--sim", f"match={sim},match={noiseless}",
                                  "--out", str(tmp_path / "out")]) == 0
     text = (tmp_path / "out" / "TRANSFER.md").read_text()
     assert (tmp_path / "out" / "transfer.png").stat().st_size > 10_000
     assert "| 2.5 | 50 | 88 % [76, 94] |" in text  # 44 / 50 on the stand-in
     assert text.count("| 80 % | 5 % | 2.50 | +8 |") == 1  # the sim's seed 1 at 2.5 mm, and the gap
+    assert "| 0 | 30 | 97 % [83, 99] | 0 % [0, 11] |" in text and "| 70 % | 5 % | 2.50 | +27 |" in text
     assert "| MATCH applies less mean contact force than VICES (robot: up to ~30 % less) | holds |" in text
     with pytest.raises(SystemExit):
         transfer_report.main([str(tmp_path / "missing.json"), "--out", str(tmp_path / "out")])
