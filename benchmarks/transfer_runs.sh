@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# The paper's real-robot protocol on the MuJoCo C stand-in, for policies trained with dynamics randomisation:
+# trains (or resumes) each method with --dynamics-randomization on the authors' task (cpu preset, 3 seeds, STEPS
+# env steps per seed), exports every seed to ONNX, evaluates each run in the training simulator without noise and
+# on the four shells (200 episodes per seed and level), runs the stand-in protocol (30 noiseless trials per seed,
+# then the best seed with 50 trials per shell) and writes OUT_DIR/TRANSFER.md and transfer.png. Every stage
+# resumes or skips what is done, so re-run it after an interruption until it reports the report written.
+#   bash benchmarks/transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS]
+#   nohup bash benchmarks/transfer_runs.sh ~/runs/transfer results/transfer > ~/runs/transfer.log 2>&1 &
+set -euo pipefail
+cd "$(dirname "$0")/.."
+runs=${1:?usage: transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS]}
+out=${2:?usage: transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS]}
+steps=${3:-2500000}
+methods=${4:-pose vices hybrid match}
+mkdir -p "$runs" "$out/sim"
+policies=() sims=()
+for method in $methods; do
+  dir="$runs/$method"
+  if compgen -G "$dir/checkpoints/latest/*/commit_success.txt" > /dev/null; then
+    python train.py --resume --total-steps "$steps" --out "$dir" --no-progress
+  else
+    python train.py --method "$method" --preset cpu --seeds 3 --total-steps "$steps" --dynamics-randomization \
+      --out "$dir" --no-progress
+  fi
+  for seed in 0 1 2; do
+    [ -f "$dir/onnx/policy_seed$seed.onnx" ] || python -m match_jax.export "$dir" "$dir/onnx" --seed-index "$seed"
+  done
+  [ -f "$out/sim/$method.json" ] || python eval.py "$dir" --noise-sweep 0,1,2.5,5,7.5 --episodes 200 \
+    --json "$out/sim/$method.json"
+  policies+=("$method=$dir/onnx") sims+=("$method=$out/sim/$method.json")
+  echo "[transfer_runs] $method trained, exported and evaluated at $(date -u +%FT%TZ)"
+done
+join() { local IFS=,; echo "$*"; }
+python benchmarks/standin_protocol.py --policies "$(join "${policies[@]}")" --out "$out/standin.json"
+python -m match_jax.transfer_report "$out/standin.json" --sim "$(join "${sims[@]}")" --out "$out"
+echo "[transfer_runs] report written at $(date -u +%FT%TZ)"
