@@ -232,10 +232,11 @@ def plot(protocol: dict[str, list[Level]], sims: dict[str, list[dict]], path: pa
         ax.grid(alpha=0.3)
     axes[0].set_ylim(-2, 102)
     axes[2].axhline(20.0, color="k", linewidth=0.8, linestyle="--")
-    axes[0].legend(fontsize=7, loc="lower left")
+    fig.legend(*axes[0].get_legend_handles_labels(), fontsize=8, loc="upper center", ncol=4,
+               bbox_to_anchor=(0.5, 0.0))
     fig.suptitle("Stand-in (solid, 95 % intervals over trials) vs training simulator (dotted), best seed per method")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")  # the legend sits below the axes
     plt.close(fig)
 
 
