@@ -3,8 +3,9 @@
 # trains (or resumes) each method with --dynamics-randomization on the authors' task (cpu preset, 3 seeds, STEPS
 # env steps per seed), exports every seed to ONNX, evaluates each run in the training simulator without noise and
 # on the four shells (200 episodes per seed and level), runs the stand-in protocol (30 noiseless trials per seed,
-# then the best seed with 50 trials per shell) and writes OUT_DIR/TRANSFER.md and transfer.png. Every stage
-# resumes or skips what is done, so re-run it after an interruption until it reports the report written.
+# then the best seed with 50 trials per shell) and writes OUT_DIR/TRANSFER.md and transfer.png. The report is
+# rewritten after each method, over the methods done so far. Every stage resumes or skips what is done, so re-run
+# it after an interruption until it reports the report written.
 #   bash benchmarks/transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS]
 #   nohup bash benchmarks/transfer_runs.sh ~/runs/transfer results/transfer > ~/runs/transfer.log 2>&1 &
 set -euo pipefail
@@ -14,7 +15,8 @@ out=${2:?usage: transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS]}
 steps=${3:-2500000}
 methods=${4:-pose vices hybrid match}
 mkdir -p "$runs" "$out/sim"
-policies=() sims=()
+sims=()
+join() { local IFS=,; echo "$*"; }
 for method in $methods; do
   dir="$runs/$method"
   if compgen -G "$dir/checkpoints/latest/*/commit_success.txt" > /dev/null; then
@@ -28,10 +30,9 @@ for method in $methods; do
   done
   [ -f "$out/sim/$method.json" ] || python eval.py "$dir" --noise-sweep 0,1,2.5,5,7.5 --episodes 200 \
     --json "$out/sim/$method.json"
-  policies+=("$method=$dir/onnx") sims+=("$method=$out/sim/$method.json")
-  echo "[transfer_runs] $method trained, exported and evaluated at $(date -u +%FT%TZ)"
+  sims+=("$method=$out/sim/$method.json")
+  python benchmarks/standin_protocol.py --policies "$method=$dir/onnx" --out "$out/standin.json"
+  python -m match_jax.transfer_report "$out/standin.json" --sim "$(join "${sims[@]}")" --out "$out"
+  echo "[transfer_runs] $method trained, exported, evaluated and run on the stand-in at $(date -u +%FT%TZ)"
 done
-join() { local IFS=,; echo "$*"; }
-python benchmarks/standin_protocol.py --policies "$(join "${policies[@]}")" --out "$out/standin.json"
-python -m match_jax.transfer_report "$out/standin.json" --sim "$(join "${sims[@]}")" --out "$out"
 echo "[transfer_runs] report written at $(date -u +%FT%TZ)"
