@@ -30,6 +30,7 @@ RESUME_FLAGS = ("resume", "out", "total_steps", "max_chunks", "time_budget_min",
 
 
 TASKS = ("authors", "earlier")  # match_jax.envs.tasks.TASKS
+DYNAMICS = ("stable", "authors")  # match_jax.randomization.DYNAMICS_PRESETS
 
 
 def _three_floats(text: str) -> tuple[float, float, float]:
@@ -114,10 +115,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "0,0,0 = rigid)")
     parser.add_argument("--spawn-noise", choices=["uniform", "gaussian"], default=None,
                         help="hand spawn noise +-(2, 2, 1) cm uniform (default) or gaussian with those sds")
-    parser.add_argument("--dynamics-randomization", action="store_true",
-                        help="draw per episode the authors' transfer ranges: peg mass x U[0.8, 1.2], peg friction "
-                             "U[0.5, 2.0], k_p U[60, 140] N/m, rotational k_p U[20, 60] N m/rad, force gain "
-                             "U[0.05, 0.6] (docs/transfer.md)")
+    parser.add_argument("--dynamics-randomization", nargs="?", const="stable", default=None,
+                        choices=DYNAMICS,
+                        help="draw per episode peg mass x U[0.8, 1.2], peg friction U[0.5, 2.0], k_p U[60, 140] N/m, "
+                             "rotational k_p U[20, 30] N m/rad and force gain U[0.05, 0.6] ('stable', the default); "
+                             "'authors' draws the rotational k_p from the authors' U[20, 60], where the arm oscillates "
+                             "above ~34 (docs/transfer.md)")
     parser.add_argument("--physics-backend", choices=["jax", "warp"], default="jax",
                         help="MJX's JAX physics (default) or MuJoCo Warp (pip install 'match_jax[warp]'; "
                              "docs/gpu.md#physics-backend)")
@@ -197,7 +200,7 @@ def build_spec(args: argparse.Namespace):
     from match_jax.envs import FPiHConfig
     from match_jax.presets import get_preset
     from match_jax.envs.tasks import task_config
-    from match_jax.randomization import ModelRandomization
+    from match_jax.randomization import DYNAMICS_PRESETS, ModelRandomization
     from match_jax.training import RunSpec
 
     overrides = {"method": args.method}
@@ -237,7 +240,8 @@ def build_spec(args: argparse.Namespace):
     except ValueError as err:
         raise SystemExit(f"train.py: error: {err}") from None
     if args.dynamics_randomization:
-        env = dataclasses.replace(env, randomization=env.randomization.with_dynamics())
+        env = dataclasses.replace(env, randomization=env.randomization.with_dynamics(
+            **DYNAMICS_PRESETS[args.dynamics_randomization]))
     env = dataclasses.replace(env, controller=dataclasses.replace(env.controller,
                                                                   use_task_inertia=args.controller == "paper"))
     return RunSpec(ppo=ppo, env=env, num_seeds=args.seeds, seed=args.seed, preset=args.preset)

@@ -7,8 +7,8 @@ auto-reset (a fresh draw per finished env), the seed batch and env sharding carr
 state. Drawn controller gains live in `state.info['gains']` and enter the control target.
 
 Randomised: the peg's pose in the hand (IsaacLab Factory's `held_asset_pos_noise`: the grasp moves on
-every reset), and, with the dynamics ranges on (`AUTHORS_DYNAMICS`), the held peg's mass and contact
-friction and the controller's position stiffness, rotation stiffness and force gain.
+every reset), and, with the dynamics ranges on (`DYNAMICS_RANGES`, or the authors' `AUTHORS_DYNAMICS`), the
+held peg's mass and contact friction and the controller's position stiffness, rotation stiffness and force gain.
 """
 
 from __future__ import annotations
@@ -75,14 +75,21 @@ class ModelRandomization:
         return any(getattr(self, name) is not None for name in ("peg_mass_scale", "peg_friction") + GAIN_NAMES)
 
     def with_dynamics(self, **ranges) -> "ModelRandomization":
-        """This config with the given dynamics ranges (default: the authors' `AUTHORS_DYNAMICS`)."""
-        return dataclasses.replace(self, **(ranges or AUTHORS_DYNAMICS))
+        """This config with the given dynamics ranges (default: `DYNAMICS_RANGES`)."""
+        return dataclasses.replace(self, **(ranges or DYNAMICS_RANGES))
 
 
 # The authors' dynamics randomisation for transfer: peg mass x U[0.8, 1.2], peg friction U[0.5, 2.0],
 # k_p U[60, 140] N/m, rotational k_p U[20, 60] N m/rad, k_f U[0.05, 0.6].
 AUTHORS_DYNAMICS = {"peg_mass_scale": (0.8, 1.2), "peg_friction": (0.5, 2.0), "pos_stiffness": (60.0, 140.0),
                     "rot_stiffness": (20.0, 60.0), "force_gain": (0.05, 0.6)}
+# The highest rotational k_p (N m/rad) at which the law at 120 Hz holds the arm still in this scene: with
+# k_d = 2 sqrt(k_p) applied explicitly once per 1/120 s control step, the wrist joints (5 and 7) oscillate
+# from about 34 N m/rad up.
+STABLE_ROT_STIFFNESS = 30.0
+# The default ranges: the authors' with the rotational k_p drawn from U[20, 30] N m/rad (docs/transfer.md).
+DYNAMICS_RANGES = {**AUTHORS_DYNAMICS, "rot_stiffness": (AUTHORS_DYNAMICS["rot_stiffness"][0], STABLE_ROT_STIFFNESS)}
+DYNAMICS_PRESETS = {"stable": DYNAMICS_RANGES, "authors": AUTHORS_DYNAMICS}
 
 
 def _uniform(key: jax.Array, bounds: Range) -> jax.Array:

@@ -1,5 +1,5 @@
-"""Dynamics randomisation (the authors' transfer ranges): per-env peg mass, peg friction and controller
-gains, drawn per episode through the per-env model, shown to the critic only."""
+"""Dynamics randomisation (the authors' transfer ranges, the rotational stiffness capped where the law is
+stable): per-env peg mass, peg friction and controller gains, drawn per episode through the per-env model, shown to the critic only."""
 
 import dataclasses
 import json
@@ -13,7 +13,7 @@ import pytest
 from conftest import QUIET
 from match_jax.controllers import ControllerConfig, ControlTarget, hybrid_torque
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.randomization import AUTHORS_DYNAMICS, ModelRandomization
+from match_jax.randomization import AUTHORS_DYNAMICS, DYNAMICS_PRESETS, STABLE_ROT_STIFFNESS, ModelRandomization
 from match_jax.training import RunSpec
 
 import train
@@ -36,18 +36,23 @@ def test_dynamics_is_off_by_default_and_bad_ranges_name_the_value():
     assert not RunSpec.from_json(json.dumps(data)).env.randomization.dynamics
 
 
-def test_train_flag_records_the_authors_ranges_in_the_run_config():
+def test_train_flag_records_the_ranges_in_the_run_config():
     spec = train.build_spec(train.parse_args(["--method", "match", "--out", "/tmp/x", "--dynamics-randomization"]))
     assert spec.env.randomization == DYNAMICS
     again = RunSpec.from_json(spec.to_json()).env.randomization
     assert again == DYNAMICS and again.pos_stiffness == (60.0, 140.0)
+    assert again.rot_stiffness == (20.0, STABLE_ROT_STIFFNESS)  # the authors' lower bound, capped above
+    authors = train.build_spec(train.parse_args(["--method", "match", "--out", "/tmp/x",
+                                                 "--dynamics-randomization", "authors"])).env.randomization
+    assert authors == ModelRandomization().with_dynamics(**AUTHORS_DYNAMICS) and authors.rot_stiffness == (20.0, 60.0)
+    assert set(train.DYNAMICS) == set(DYNAMICS_PRESETS)
     plain = train.build_spec(train.parse_args(["--method", "match", "--out", "/tmp/x"]))
     assert not plain.env.randomization.dynamics
 
 
 @pytest.fixture(scope="module")
 def draws():
-    """256 envs' draws of the default scene with the authors' dynamics ranges."""
+    """256 envs' draws of the default scene with the default dynamics ranges."""
     env = FPiHEnv(FPiHConfig(randomization=DYNAMICS))
     keys = jax.random.split(jax.random.PRNGKey(11), 256)
     fields = jax.jit(jax.vmap(env.model_sampler.sample))(keys)
@@ -85,7 +90,7 @@ def test_each_env_draws_its_own_mass_friction_and_gains_within_the_ranges(draws)
     np.testing.assert_allclose(fields["pair_friction"][:, :, 2:], np.broadcast_to(model.pair_friction[:, 2:], (256, model.npair, 3)),
                                rtol=1e-6)
     _spread_in(gains["pos_stiffness"][:, 0], 60.0, 140.0)
-    _spread_in(gains["rot_stiffness"][:, 0], 20.0, 60.0)
+    _spread_in(gains["rot_stiffness"][:, 0], 20.0, STABLE_ROT_STIFFNESS)
     _spread_in(gains["force_gain"], 0.05, 0.6)
     assert np.all(gains["pos_stiffness"] == gains["pos_stiffness"][:, :1])  # one draw for x, y, z
     # the draws are independent of each other
@@ -148,3 +153,32 @@ def test_a_heavier_or_lighter_peg_is_tared_and_the_randomised_env_steps():
     mass = np.asarray(state.info["model"]["body_mass"])[:, env.ids.peg_body]
     assert mass.max() - mass.min() > 0.005  # kg: an untared difference would read > 0.05 N
     assert np.abs(np.asarray(state.info["ee_force"])).max() < 0.05
+
+
+@pytest.mark.slow
+def test_the_arm_holds_still_at_the_top_of_every_gain_range_but_not_at_the_authors_rotational_top():
+    """Pose envs hold the neutral action for 40 policy steps with every drawn gain at its range's top: the
+    wrist stays still and nothing touches. The same with the rotational k_p at
+    the authors' 60 N m/rad: the wrist joints oscillate (why the default range stops at 30)."""
+    cfg = FPiHConfig(control="pose", **{**QUIET, "randomization": DYNAMICS})
+    env = FPiHEnv(cfg)
+    envs = 8
+    state = jax.jit(jax.vmap(env.reset))(jax.random.split(jax.random.PRNGKey(5), envs))
+    step = jax.jit(jax.vmap(env.step))
+    hold = jnp.broadcast_to(env.neutral_action(), (envs, env.action_size))
+
+    def wrist_speed(rot_stiffness: float) -> tuple[float, float]:
+        gains = {"pos_stiffness": jnp.full((envs, 3), DYNAMICS.pos_stiffness[1]),
+                 "rot_stiffness": jnp.full((envs, 3), rot_stiffness),
+                 "force_gain": jnp.full((envs,), DYNAMICS.force_gain[1])}
+        s = state.replace(info={**state.info, "gains": gains})
+        contact = 0.0
+        for _ in range(40):
+            s = step(s, hold)
+            contact = max(contact, float(np.asarray(s.metrics["in_contact"]).max()))
+        return float(np.abs(np.asarray(s.pipeline_state.qvel)[:, 4:7]).max()), contact  # rad/s, joints 5-7
+
+    speed, contact = wrist_speed(DYNAMICS.rot_stiffness[1])
+    assert speed < 0.01 and contact == 0.0, (speed, contact)
+    speed, _ = wrist_speed(AUTHORS_DYNAMICS["rot_stiffness"][1])
+    assert speed > 0.1, speed
