@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # The paper's real-robot protocol on the MuJoCo C stand-in, for policies trained with dynamics randomisation:
 # trains (or resumes) each method with --dynamics-randomization on the authors' task (cpu preset, 3 seeds, STEPS
-# env steps per seed), exports every seed to ONNX, evaluates each run in the training simulator without noise and
-# on the four shells (200 episodes per seed and level), runs the stand-in protocol (30 noiseless trials per seed,
-# then the best seed with 50 trials per shell) and writes OUT_DIR/TRANSFER.md and transfer.png. The report is
-# rewritten after each method, over the methods done so far. Every stage resumes or skips what is done, so re-run
-# it after an interruption until it reports the report written.
+# env steps per seed), exports every seed to ONNX (Pose and Hybrid-Basic with the stochastic output at 5 % of
+# the std, which the protocol samples, as the paper's robot ran them), evaluates each run in the training
+# simulator without noise and on the four shells (200 episodes per seed and level), runs the stand-in protocol
+# (30 noiseless trials per seed, then the best seed with 50 trials per shell) and writes OUT_DIR/TRANSFER.md
+# and transfer.png. The report is rewritten after each method, over the methods done so far. Every stage resumes
+# or skips what is done, so re-run it after an interruption until it reports the report written.
 #   bash benchmarks/transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS]
 #   nohup bash benchmarks/transfer_runs.sh ~/runs/transfer results/transfer > ~/runs/transfer.log 2>&1 &
 set -euo pipefail
@@ -25,8 +26,11 @@ for method in $methods; do
     python train.py --method "$method" --preset cpu --seeds 3 --total-steps "$steps" --dynamics-randomization \
       --out "$dir" --no-progress
   fi
+  stochastic=()
+  case $method in pose|hybrid) stochastic=(--stochastic --std-scale 0.05) ;; esac
   for seed in 0 1 2; do
-    [ -f "$dir/onnx/policy_seed$seed.onnx" ] || python -m match_jax.export "$dir" "$dir/onnx" --seed-index "$seed"
+    [ -f "$dir/onnx/policy_seed$seed.onnx" ] || \
+      python -m match_jax.export "$dir" "$dir/onnx" --seed-index "$seed" "${stochastic[@]}"
   done
   [ -f "$out/sim/$method.json" ] || python eval.py "$dir" --noise-sweep 0,1,2.5,5,7.5 --episodes 200 \
     --json "$out/sim/$method.json"

@@ -29,7 +29,8 @@ import numpy as np
 
 ARM_JOINTS = 7
 R_DOWN = np.diag([1.0, -1.0, -1.0])  # end effector pointing down, yaw 0
-SHELL_EDGES_MM = (0.0, 1.0, 2.5, 5.0, 7.5)  # the authors' noise shells: radius U[previous edge, level]
+SHELL_EDGES_MM = (0.0, 1.0, 2.5, 5.0, 7.5)
+ACTION_NOISE_STREAM = 1  # run_trials seeds the stochastic policy's noise with (seed, this)  # the authors' noise shells: radius U[previous edge, level]
 NOISE_TYPES = ("shell", "gaussian")
 FORCE_SOURCES = ("joint_torque", "wrist")
 
@@ -170,9 +171,14 @@ def orientation_error(rot: np.ndarray, rot_target: np.ndarray) -> np.ndarray:
 
 
 class Policy:
-    """An exported policy (`match_jax.export`): ONNX file + its JSON, run with onnxruntime."""
+    """An exported policy (`match_jax.export`): ONNX file + its JSON, run with onnxruntime.
 
-    def __init__(self, onnx_path: str | pathlib.Path):
+    noise_seed: None for the deterministic action (tanh of the mean); a numpy seed (int or ints) to sample the exported
+    stochastic action (`--stochastic`: tanh(mean + std_scale * std * noise), selections deterministic) with
+    standard-normal noise from a numpy generator seeded with it.
+    """
+
+    def __init__(self, onnx_path: str | pathlib.Path, noise_seed=None):
         import onnxruntime
 
         path = pathlib.Path(onnx_path)
@@ -182,11 +188,27 @@ class Policy:
         if not json_path.is_file():
             raise FileNotFoundError(f"no description {json_path.name} beside {path} (write both with match_jax.export)")
         self.description = json.loads(json_path.read_text())
+        stochastic = self.description.get("stochastic")
+        if noise_seed is not None and not stochastic:
+            raise ValueError(f"{path} has no stochastic output (export it with --stochastic to sample actions)")
+        self.std_scale = None if noise_seed is None else float(stochastic["std_scale"])
+        self.noise = None if noise_seed is None else np.random.default_rng(noise_seed)
+        self.noise_size = len(self.description["action"]["continuous_indices"])
         self.session = onnxruntime.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+        self.has_noise_input = bool(stochastic)
+
+    @property
+    def deployment(self) -> str:
+        """'deterministic', or 'stochastic, std x <scale>'."""
+        return "deterministic" if self.noise is None else f"stochastic, std x {self.std_scale:g}"
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
-        out = self.session.run(["action"], {"obs": np.asarray(obs, np.float32)[None]})[0]
-        return out[0].astype(np.float64)
+        feeds = {"obs": np.asarray(obs, np.float32)[None]}
+        if self.has_noise_input:  # 'action' does not read it
+            feeds["noise"] = np.zeros((1, self.noise_size), np.float32) if self.noise is None else \
+                self.noise.standard_normal((1, self.noise_size)).astype(np.float32)
+        output = "action" if self.noise is None else "sampled_action"
+        return self.session.run([output], feeds)[0][0].astype(np.float64)
 
 
 class StandIn:
@@ -471,11 +493,14 @@ def summarize(trials: list[dict]) -> dict:
 
 
 def run_trials(onnx_path: str | pathlib.Path, trials: int, noise_mm: float = 0.0, noise_type: str = "shell",
-               seed: int = 0, config: StandInConfig = StandInConfig()) -> dict:
-    """`trials` trials of an exported policy at one noise level: per-trial rows and their summary."""
+               seed: int = 0, config: StandInConfig = StandInConfig(), stochastic: bool = False) -> dict:
+    """`trials` trials of an exported policy at one noise level: per-trial rows and their summary.
+
+    `seed` draws the episodes; with `stochastic` the policy samples its exported stochastic action, the
+    noise drawn from a second stream of the same seed (the episodes do not change)."""
     if not (isinstance(trials, int) and trials >= 1):
         raise ValueError(f"trials must be a positive integer, got {trials!r}")
-    policy = Policy(onnx_path)
+    policy = Policy(onnx_path, noise_seed=(seed, ACTION_NOISE_STREAM) if stochastic else None)
     standin = StandIn(policy.description, config)
     rng = np.random.default_rng(seed)
     rows = []
@@ -485,7 +510,7 @@ def run_trials(onnx_path: str | pathlib.Path, trials: int, noise_mm: float = 0.0
         row.update(trial=i, hole_obs_offset_mm=(episode.hole_obs_offset * 1000.0).tolist())
         rows.append(row)
     return {"policy": str(onnx_path), "method": policy.description.get("method"), "noise_mm": noise_mm,
-            "noise_type": noise_type, "seed": seed, "config": dataclasses.asdict(config),
+            "noise_type": noise_type, "seed": seed, "deployment": policy.deployment, "config": dataclasses.asdict(config),
             "summary": summarize(rows), "trials": rows}
 
 
@@ -499,6 +524,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "'gaussian': sd per axis")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-perturbation", action="store_true", help="the training scene's physics and no delay")
+    parser.add_argument("--stochastic", action="store_true",
+                        help="sample the policy's stochastic action (an export with --stochastic)")
     parser.add_argument("--out", type=pathlib.Path, required=True, help="JSON file of the trials and their summary")
     args = parser.parse_args(argv)
     if args.trials < 1:
@@ -512,14 +539,15 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     config = StandInConfig(perturbation=Perturbation.none()) if args.no_perturbation else StandInConfig()
     try:
-        result = run_trials(args.policy, args.trials, args.noise_mm, args.noise_type, args.seed, config)
+        result = run_trials(args.policy, args.trials, args.noise_mm, args.noise_type, args.seed, config,
+                            args.stochastic)
     except (FileNotFoundError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1, default=float) + "\n")
     s = result["summary"]
-    print(f"{result['method']} at {args.noise_mm:g} mm ({args.noise_type}): success {100 * s['success_rate']:.0f} %, "
+    print(f"{result['method']} ({result['deployment']}) at {args.noise_mm:g} mm ({args.noise_type}): success {100 * s['success_rate']:.0f} %, "
           f"breaks {100 * s['broken_rate']:.0f} %, mean force {s['mean_force_n']['mean']:.2f} N, "
           f"max force {s['max_force_n']['mean']:.2f} N over {s['trials']} trials -> {args.out}")
     return 0

@@ -181,9 +181,10 @@ def transfer_claims(protocol: dict[str, list[Level]], sims: dict[str, list[dict]
     return out
 
 
-def table_lines(method: str, levels: list[Level], sim: list[dict]) -> list[str]:
-    """One method's table: stand-in and training simulator per level."""
-    lines = [f"### {LABELS.get(method, method)} ({levels[0].seed}, the best of the noiseless trials)", "",
+def table_lines(method: str, levels: list[Level], sim: list[dict], deployment: str = "deterministic") -> list[str]:
+    """One method's table: stand-in and training simulator per level; `deployment` of the stand-in's policy."""
+    lines = [f"### {LABELS.get(method, method)} ({levels[0].seed}, the best of the noiseless trials; "
+             f"{deployment} on the stand-in)", "",
              "| noise (mm) | trials | success [95 %] | breaks | mean force (N) | max force (N) | energy (J) "
              "| sim success | sim breaks | sim mean force (N) | gap (points) |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -256,11 +257,14 @@ def write_report(standin: dict, sims: dict[str, list[dict]], out: pathlib.Path, 
              f"Stand-in {'with its perturbations' if perturbed else 'without perturbations'}; the peg breaks at "
              f"{STANDIN_BREAK_N:g} N "
              "of the filtered force estimate. Per method, the seed with the most noiseless successes is run on the "
-             "noise shells. Intervals: Wilson for rates, normal for means over trials. Sim columns: the same seed "
+             "noise shells. Stochastic: the policy samples its action with the std scaled as exported (the paper's "
+             "robot ran Pose and Hybrid-Basic at 5 %); the training simulator's columns are deterministic. "
+             "Intervals: Wilson for rates, normal for means over trials. Sim columns: the same seed "
              "in the training simulator (breaks at 10 N on the wrist sensor; mean force: the authors' definition); "
              "gap: stand-in minus sim success.", "", "![transfer](transfer.png)", ""]
     for method, levels in protocol.items():
-        lines += table_lines(method, levels, sims.get(method, [])) + [""]
+        deployment = standin[method].get("deployment", "deterministic")
+        lines += table_lines(method, levels, sims.get(method, []), deployment) + [""]
     lines += ["## The paper's real-robot claims on the stand-in", "",
               "Verdicts: the 95 % Welch interval of the difference of per-trial means (see "
               "`match_jax.transfer_report`). A method that was not run reads 'not run'.", "",

@@ -21,6 +21,7 @@ from match_jax import checkpoints
 from match_jax import export as ex
 from match_jax.distributions import Sample
 from match_jax.ppo import deterministic_action
+from match_jax.standin import Policy
 from match_jax.presets import get_preset
 from match_jax.training import Run, RunSpec, export_actors
 
@@ -157,6 +158,27 @@ def test_stochastic_output_samples_with_the_scaled_std(runs, tmp_path):
     description = json.loads((tmp_path / "policy_seed0.json").read_text())
     assert description["stochastic"]["std_scale"] == 0.05
     assert [i["name"] for i in description["onnx"]["inputs"]] == ["obs", "noise"]
+
+
+def test_the_standin_samples_the_stochastic_export_reproducibly(runs, tmp_path):
+    """The stand-in's policy runs the ONNX file: the deterministic action by default; with a noise seed the
+    sampled action with that seed's standard-normal noise, the same for the same seed; an export without
+    the stochastic output cannot be sampled."""
+    run_dir, _, policies = runs["hybrid"]
+    assert ex.main([str(run_dir), str(tmp_path / "sto"), "--stochastic", "--std-scale", "0.05"]) == 0
+    assert ex.main([str(run_dir), str(tmp_path / "det")]) == 0
+    path, obs = tmp_path / "sto" / "policy_seed0.onnx", _raw_observations(policies[0], count=5)
+    first, again, other = (Policy(path, noise_seed=s) for s in ((4, 1), (4, 1), (5, 1)))
+    noise = np.random.default_rng((4, 1)).standard_normal((5, 7)).astype(np.float32)
+    want = _run_onnx(path, {"obs": obs, "noise": noise})
+    got = np.stack([first(o) for o in obs])
+    np.testing.assert_allclose(got, want["sampled_action"], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(got, np.stack([again(o) for o in obs]))
+    assert np.abs(got - np.stack([other(o) for o in obs])).max() > 1e-4
+    np.testing.assert_allclose(np.stack([Policy(path)(o) for o in obs]), want["action"], rtol=0, atol=1e-6)
+    assert first.deployment == "stochastic, std x 0.05" and Policy(path).deployment == "deterministic"
+    with pytest.raises(ValueError, match="--stochastic"):
+        Policy(tmp_path / "det" / "policy_seed0.onnx", noise_seed=0)
 
 
 def test_an_exported_run_exports_its_seeds(runs, tmp_path):

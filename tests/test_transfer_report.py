@@ -1,6 +1,8 @@
 """The stand-in protocol's report: the sim rows it pairs with, the claims' verdicts, the files it writes."""
 
+import importlib.util
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -82,6 +84,7 @@ def test_the_claims_read_the_trials():
 def test_the_report_and_its_figure(tmp_path):
     standin = {"config": {"no_perturbation": False},
                "match": _entry([29, 48, 44, 40, 38]), "vices": _entry([27, 47, 42, 39, 36], force=3.0, max_force=14.0)}
+    standin["vices"]["deployment"] = "stochastic"  # a file written before deployments were recorded: deterministic
     sim = tmp_path / "match_sim.json"
     sim.write_text(json.dumps({"noise_sweep": [_sim_row(lv, "shell", [0.9, 0.8]) for lv in (1.0, 2.5)]}))
     noiseless = tmp_path / "match_sim_noiseless.json"  # a second file for the same method
@@ -92,8 +95,38 @@ def test_the_report_and_its_figure(tmp_path):
     text = (tmp_path / "out" / "TRANSFER.md").read_text()
     assert (tmp_path / "out" / "transfer.png").stat().st_size > 10_000
     assert "| 2.5 | 50 | 88 % [76, 94] |" in text  # 44 / 50 on the stand-in
+    assert "### MATCH (policy_seed1, the best of the noiseless trials; deterministic on the stand-in)" in text
+    assert "### VICES (policy_seed1, the best of the noiseless trials; stochastic on the stand-in)" in text
     assert text.count("| 80 % | 5 % | 2.50 | +8 |") == 1  # the sim's seed 1 at 2.5 mm, and the gap
     assert "| 0 | 30 | 97 % [83, 99] | 0 % [0, 11] |" in text and "| 70 % | 5 % | 2.50 | +27 |" in text
     assert "| MATCH applies less mean contact force than VICES (robot: up to ~30 % less) | holds |" in text
     with pytest.raises(SystemExit):
         transfer_report.main([str(tmp_path / "missing.json"), "--out", str(tmp_path / "out")])
+
+
+def _protocol_script():
+    path = pathlib.Path(__file__).resolve().parents[1] / "benchmarks" / "standin_protocol.py"
+    spec = importlib.util.spec_from_file_location("standin_protocol", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_protocol_samples_only_stochastic_exports(tmp_path, capsys):
+    """Pose is sampled by default (the paper's deployment): an export without the stochastic output, a
+    misspelt method, or a resume with another deployment is a one-line error before any trial runs."""
+    protocol = _protocol_script()
+    folder = tmp_path / "pose"
+    folder.mkdir()
+    (folder / "policy_seed0.onnx").write_bytes(b"not run")
+    (folder / "policy_seed0.json").write_text(json.dumps({"stochastic": None}))
+    out = tmp_path / "standin.json"
+    for extra, message in (([], "exported without --stochastic"), (["--stochastic", "Pose"], "names no method: 'Pose'")):
+        with pytest.raises(SystemExit):
+            protocol.main(["--policies", f"pose={folder}", "--out", str(out), *extra])
+        assert message in capsys.readouterr().err
+    out.write_text(json.dumps({"pose": {"deployment": "deterministic", "noiseless": {}, "shells": {}}}))
+    (folder / "policy_seed0.json").write_text(json.dumps({"stochastic": {"std_scale": 0.05}}))
+    with pytest.raises(SystemExit):
+        protocol.main(["--policies", f"pose={folder}", "--out", str(out)])
+    assert "holds pose run deterministic, not stochastic" in capsys.readouterr().err
