@@ -121,6 +121,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "rotational k_p U[20, 30] N m/rad and force gain U[0.05, 0.6] ('stable', the default); "
                              "'authors' draws the rotational k_p from the authors' U[20, 60], where the arm oscillates "
                              "above ~34 (docs/transfer.md)")
+    parser.add_argument("--arm-model-error", action="store_true",
+                        help="draw per episode the robot's masses x U[0.99, 1.01] and rotor inertias x U[0.8, 1.25] "
+                             "for the physics only; the control law keeps the nominal model (docs/transfer.md)")
     parser.add_argument("--physics-backend", choices=["jax", "warp"], default="jax",
                         help="MJX's JAX physics (default) or MuJoCo Warp (pip install 'match_jax[warp]'; "
                              "docs/gpu.md#physics-backend)")
@@ -242,6 +245,8 @@ def build_spec(args: argparse.Namespace):
     if args.dynamics_randomization:
         env = dataclasses.replace(env, randomization=env.randomization.with_dynamics(
             **DYNAMICS_PRESETS[args.dynamics_randomization]))
+    if args.arm_model_error:
+        env = dataclasses.replace(env, randomization=env.randomization.with_arm_model_error())
     env = dataclasses.replace(env, controller=dataclasses.replace(env.controller,
                                                                   use_task_inertia=args.controller == "paper"))
     return RunSpec(ppo=ppo, env=env, num_seeds=args.seeds, seed=args.seed, preset=args.preset)

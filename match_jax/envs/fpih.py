@@ -474,8 +474,12 @@ class FPiHEnv(BraxEnv):
         low, high = m.actuator_ctrlrange[:, 0], m.actuator_ctrlrange[:, 1]
         zeros3 = jnp.zeros(3)
 
+        law_keeps_nominal = cfg.randomization.arm_model_error
+
         def torque_fn(d, force):
             dyn = sim.arm_dynamics(m, d, self.ids, force)
+            if law_keeps_nominal:  # the physics' robot differs from the law's model
+                dyn = self.model_sampler.nominal_law_view(m, dyn)
             return jnp.clip(hybrid_torque(dyn, target, cfg.controller), low, high)
 
         def physics_step(carry, hold_torque: bool):
