@@ -7,14 +7,17 @@
 # (30 noiseless trials per seed, then the best seed with 50 trials per shell) and writes OUT_DIR/TRANSFER.md
 # and transfer.png. The report is rewritten after each method, over the methods done so far. Every stage resumes
 # or skips what is done, so re-run it after an interruption until it reports the report written.
-#   bash benchmarks/transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS]
+#   bash benchmarks/transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS] [TRAIN_FLAGS]
+#   bash benchmarks/transfer_runs.sh ~/runs/transfer_arm results/transfer/arm_model_error 2500000 "pose match" \
+#     --arm-model-error      # extra train.py flags for a fresh run, recorded in its config
 #   nohup bash benchmarks/transfer_runs.sh ~/runs/transfer results/transfer > ~/runs/transfer.log 2>&1 &
 set -euo pipefail
 cd "$(dirname "$0")/.."
-runs=${1:?usage: transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS]}
-out=${2:?usage: transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS]}
+runs=${1:?usage: transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS] [TRAIN_FLAGS]}
+out=${2:?usage: transfer_runs.sh RUNS_DIR OUT_DIR [STEPS] [METHODS] [TRAIN_FLAGS]}
 steps=${3:-2500000}
 methods=${4:-pose vices hybrid match}
+train_flags=("${@:5}")
 mkdir -p "$runs" "$out/sim"
 sims=()
 join() { local IFS=,; echo "$*"; }
@@ -24,7 +27,7 @@ for method in $methods; do
     python train.py --resume --total-steps "$steps" --out "$dir" --no-progress
   else
     python train.py --method "$method" --preset cpu --seeds 3 --total-steps "$steps" --dynamics-randomization \
-      --out "$dir" --no-progress
+      "${train_flags[@]}" --out "$dir" --no-progress
   fi
   stochastic=()
   case $method in pose|hybrid) stochastic=(--stochastic --std-scale 0.05) ;; esac
