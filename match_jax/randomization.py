@@ -159,7 +159,7 @@ class ModelSampler:
         """One env's randomised model fields (empty when nothing of the model is randomised)."""
         cfg, fields = self.config, {}
         k_offset, k_mass, k_friction = key, jax.random.fold_in(key, 1), jax.random.fold_in(key, 2)
-        k_arm_mass, k_armature = jax.random.fold_in(key, 3 + len(GAIN_NAMES)), jax.random.fold_in(key, 4 + len(GAIN_NAMES))
+        k_arm_mass, k_rotor = (jax.random.fold_in(key, 3 + len(GAIN_NAMES) + i) for i in range(2))  # after the gains
         if cfg.enabled:
             half = jnp.asarray(cfg.peg_offset_range, jnp.float32)
             offset = jax.random.uniform(k_offset, (3,), minval=-1.0, maxval=1.0) * half
@@ -181,7 +181,7 @@ class ModelSampler:
             fields["body_inertia"] = jnp.asarray(self.nominal_body_inertia) * factor[:, None]
             fields["body_subtreemass"] = jnp.asarray(self.in_subtree) @ mass
         if cfg.arm_armature_scale is not None:
-            fields["dof_armature"] = jnp.asarray(self.nominal_armature) * _uniform(k_armature, cfg.arm_armature_scale)
+            fields["dof_armature"] = jnp.asarray(self.nominal_armature) * _uniform(k_rotor, cfg.arm_armature_scale)
         if cfg.peg_friction is not None:
             mu = _uniform(k_friction, cfg.peg_friction)
             fields["pair_friction"] = jnp.asarray(self.nominal_pair_friction).at[:, :2].set(mu)

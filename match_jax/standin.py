@@ -29,8 +29,8 @@ import numpy as np
 
 ARM_JOINTS = 7
 R_DOWN = np.diag([1.0, -1.0, -1.0])  # end effector pointing down, yaw 0
-SHELL_EDGES_MM = (0.0, 1.0, 2.5, 5.0, 7.5)
-ACTION_NOISE_STREAM = 1  # run_trials seeds the stochastic policy's noise with (seed, this)  # the authors' noise shells: radius U[previous edge, level]
+SHELL_EDGES_MM = (0.0, 1.0, 2.5, 5.0, 7.5)  # the authors' noise shells: radius U[previous edge, level]
+ACTION_NOISE_STREAM = 1  # run_trials seeds the stochastic policy's noise with (seed, this)
 NOISE_TYPES = ("shell", "gaussian")
 FORCE_SOURCES = ("joint_torque", "wrist")
 
@@ -510,7 +510,8 @@ def run_trials(onnx_path: str | pathlib.Path, trials: int, noise_mm: float = 0.0
         row.update(trial=i, hole_obs_offset_mm=(episode.hole_obs_offset * 1000.0).tolist())
         rows.append(row)
     return {"policy": str(onnx_path), "method": policy.description.get("method"), "noise_mm": noise_mm,
-            "noise_type": noise_type, "seed": seed, "deployment": policy.deployment, "config": dataclasses.asdict(config),
+            "noise_type": noise_type, "seed": seed, "deployment": policy.deployment,
+            "config": dataclasses.asdict(config),
             "summary": summarize(rows), "trials": rows}
 
 
@@ -547,7 +548,8 @@ def main(argv=None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=1, default=float) + "\n")
     s = result["summary"]
-    print(f"{result['method']} ({result['deployment']}) at {args.noise_mm:g} mm ({args.noise_type}): success {100 * s['success_rate']:.0f} %, "
+    print(f"{result['method']} ({result['deployment']}) at {args.noise_mm:g} mm ({args.noise_type}): "
+          f"success {100 * s['success_rate']:.0f} %, "
           f"breaks {100 * s['broken_rate']:.0f} %, mean force {s['mean_force_n']['mean']:.2f} N, "
           f"max force {s['max_force_n']['mean']:.2f} N over {s['trials']} trials -> {args.out}")
     return 0

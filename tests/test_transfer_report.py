@@ -121,7 +121,8 @@ def test_the_protocol_samples_only_stochastic_exports(tmp_path, capsys):
     (folder / "policy_seed0.onnx").write_bytes(b"not run")
     (folder / "policy_seed0.json").write_text(json.dumps({"stochastic": None}))
     out = tmp_path / "standin.json"
-    for extra, message in (([], "exported without --stochastic"), (["--stochastic", "Pose"], "names no method: 'Pose'")):
+    for extra, message in (([], "exported without --stochastic"),
+                           (["--stochastic", "Pose"], "names no method: 'Pose'")):
         with pytest.raises(SystemExit):
             protocol.main(["--policies", f"pose={folder}", "--out", str(out), *extra])
         assert message in capsys.readouterr().err
