@@ -395,7 +395,9 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         state = run.restore_latest()
         if total_steps is not None:
             trained = int(np.asarray(state.env_steps)[0])
-            if total_steps < trained:
+            # training runs whole chunks: a finished run has trained its budget rounded up to one
+            chunks = -(-ppo.num_iterations // ppo.iterations_per_chunk)
+            if chunks * ppo.iterations_per_chunk * ppo.steps_per_iteration < trained:
                 raise RunError(f"total steps {total_steps} is below the {trained} env steps per seed {run_dir} "
                                "has trained")
             (run_dir / "config.json").write_text(spec.to_json())

@@ -157,6 +157,9 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypat
     # a finished run trains further with a larger budget, which its config.json then records
     with pytest.raises(RunError, match="below the 128 env steps per seed"):
         train(None, split, resume=True, progress=False, total_steps=3 * 32)
+    # a budget that whole iterations round up to what it trained is the finished run (nothing to train)
+    again = train(None, split, resume=True, progress=False, total_steps=4 * 32 - 5)
+    assert again["finished"] and again["iterations"] == 4 and len(read_metrics(split)) == 8
     further = train(None, split, resume=True, progress=False, total_steps=5 * 32)
     assert further["finished"] and further["iterations"] == 5 and further["env_steps_per_seed"] == 5 * 32
     assert RunSpec.from_json((split / "config.json").read_text()).ppo.total_steps == 5 * 32
