@@ -147,13 +147,7 @@ class ModelSampler:
         self.robot_bodies = np.asarray([b for b in range(1, model.nbody) if model.body_weldid[b] != 0
                                         and model.body_mocapid[b] < 0])
         self.robot_root = int(self.robot_bodies[0])
-        ancestors, body = [], peg_body  # the peg and every body whose subtree holds it
-        while True:
-            ancestors.append(body)
-            if body == 0:
-                break
-            body = int(model.body_parentid[body])
-        self.peg_and_ancestors = np.asarray(ancestors)
+        self.peg_and_ancestors = np.flatnonzero(self.in_subtree[:, peg_body])  # the bodies whose subtree holds the peg
 
     def sample(self, key: jax.Array) -> dict[str, jax.Array]:
         """One env's randomised model fields (empty when nothing of the model is randomised)."""
