@@ -35,10 +35,13 @@ for method in $methods; do
     [ -f "$dir/onnx/policy_seed$seed.onnx" ] || \
       python -m match_jax.export "$dir" "$dir/onnx" --seed-index "$seed" "${stochastic[@]}"
   done
+  # The stand-in (MuJoCo C, one core) runs beside the simulator evaluation.
+  python benchmarks/standin_protocol.py --policies "$method=$dir/onnx" --out "$out/standin.json" &
+  standin=$!
   [ -f "$out/sim/$method.json" ] || python eval.py "$dir" --noise-sweep 0,1,2.5,5,7.5 --episodes 200 \
     --json "$out/sim/$method.json"
+  wait "$standin"
   sims+=("$method=$out/sim/$method.json")
-  python benchmarks/standin_protocol.py --policies "$method=$dir/onnx" --out "$out/standin.json"
   python -m match_jax.transfer_report "$out/standin.json" --sim "$(join "${sims[@]}")" --out "$out"
   echo "[transfer_runs] $method trained, exported, evaluated and run on the stand-in at $(date -u +%FT%TZ)"
 done
