@@ -147,7 +147,6 @@ class ModelSampler:
         self.robot_bodies = np.asarray([b for b in range(1, model.nbody) if model.body_weldid[b] != 0
                                         and model.body_mocapid[b] < 0])
         self.robot_root = int(self.robot_bodies[0])
-        self.peg_and_ancestors = np.flatnonzero(self.in_subtree[:, peg_body])  # the bodies whose subtree holds the peg
 
     def sample(self, key: jax.Array) -> dict[str, jax.Array]:
         """One env's randomised model fields (empty when nothing of the model is randomised)."""
@@ -158,16 +157,10 @@ class ModelSampler:
             half = jnp.asarray(cfg.peg_offset_range, jnp.float32)
             offset = jax.random.uniform(k_offset, (3,), minval=-1.0, maxval=1.0) * half
             fields["body_pos"] = jnp.asarray(self.nominal_body_pos).at[self.peg_body].add(offset)
-        if cfg.peg_mass_scale is not None and cfg.arm_mass_scale is None:  # the draw of earlier versions
-            scale = _uniform(k_mass, cfg.peg_mass_scale)
-            peg_mass = self.nominal_body_mass[self.peg_body]
-            fields["body_mass"] = jnp.asarray(self.nominal_body_mass).at[self.peg_body].multiply(scale)
-            fields["body_inertia"] = jnp.asarray(self.nominal_body_inertia).at[self.peg_body].multiply(scale)
-            fields["body_subtreemass"] = jnp.asarray(self.nominal_subtreemass).at[self.peg_and_ancestors].add(
-                (scale - 1.0) * peg_mass)
-        elif cfg.arm_mass_scale is not None:
-            factor = jnp.ones(len(self.nominal_body_mass)).at[self.robot_bodies].set(
-                _uniform(k_arm_mass, cfg.arm_mass_scale))
+        if cfg.peg_mass_scale is not None or cfg.arm_mass_scale is not None:
+            factor = jnp.ones(len(self.nominal_body_mass))
+            if cfg.arm_mass_scale is not None:
+                factor = factor.at[self.robot_bodies].set(_uniform(k_arm_mass, cfg.arm_mass_scale))
             if cfg.peg_mass_scale is not None:
                 factor = factor.at[self.peg_body].multiply(_uniform(k_mass, cfg.peg_mass_scale))
             mass = jnp.asarray(self.nominal_body_mass) * factor
