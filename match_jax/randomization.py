@@ -131,7 +131,6 @@ class ModelSampler:
         self.nominal_body_pos = np.asarray(model.body_pos, np.float32)  # (nbody, 3), parent frames
         self.nominal_body_mass = np.asarray(model.body_mass, np.float32)  # (nbody,), kg
         self.nominal_body_inertia = np.asarray(model.body_inertia, np.float32)  # (nbody, 3), kg m^2
-        self.nominal_subtreemass = np.asarray(model.body_subtreemass, np.float32)  # (nbody,), kg
         self.nominal_pair_friction = np.asarray(model.pair_friction, np.float32)  # (npair, 5)
         self.nominal_armature = np.asarray(model.dof_armature, np.float32)  # (nv,), kg m^2
         # in_subtree[a, b]: body b is in a's subtree (a itself included); subtree masses = in_subtree @ masses
