@@ -391,13 +391,13 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         spec = dataclasses.replace(spec, ppo=dataclasses.replace(spec.ppo, total_steps=total_steps))
     run = Run(spec, run_dir)
     ppo = spec.ppo
+    chunks_total = -(-ppo.num_iterations // ppo.iterations_per_chunk)  # training runs whole chunks
+    steps_per_chunk = ppo.steps_per_iteration * ppo.iterations_per_chunk
     if resume:
         state = run.restore_latest()
         if total_steps is not None:
             trained = int(np.asarray(state.env_steps)[0])
-            # training runs whole chunks: a finished run has trained its budget rounded up to one
-            chunks = -(-ppo.num_iterations // ppo.iterations_per_chunk)
-            if chunks * ppo.iterations_per_chunk * ppo.steps_per_iteration < trained:
+            if chunks_total * steps_per_chunk < trained:  # a finished run trained its budget rounded up to chunks
                 raise RunError(f"total steps {total_steps} is below the {trained} env steps per seed {run_dir} "
                                "has trained")
             (run_dir / "config.json").write_text(spec.to_json())
@@ -407,8 +407,6 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     state = shard_envs(state, run.env.config.physics_backend)
     best = [(checkpoints.read_best_record(run_dir, i) or {}).get("success_rate", -1.0) for i in range(spec.num_seeds)]
 
-    chunks_total = -(-ppo.num_iterations // ppo.iterations_per_chunk)
-    steps_per_chunk = ppo.steps_per_iteration * ppo.iterations_per_chunk
     done_chunks = int(np.asarray(state.iteration)[0]) // ppo.iterations_per_chunk
     bar = None
     if progress:
