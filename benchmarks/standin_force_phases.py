@@ -2,23 +2,41 @@
 samples above the contact threshold, split at the first success (before: search and insertion; after: the
 peg resting in the hole until the episode ends); for hybrid policies, the fraction of in-contact and of free
 axes on force control (per policy step and axis, as eval.py's per-axis rates). Noiseless trials, the protocol's
-episodes (seed 0); `--config like-training` runs them with the training simulator's timing and force signal.
+episodes (seed 0); `--config` removes differences from the training simulator (`like-training`: its timing and
+force signal).
 
     python benchmarks/standin_force_phases.py --policies pose=RUN/onnx/policy_seed0.onnx,vices=... \
         --stochastic pose --trials 8 --json results/transfer/dynamics_randomization/force_phases.json
 """
 
 import argparse
+import dataclasses
 import json
+import math
+import pathlib
 
 import numpy as np
 
 from match_jax import standin
 
 
-CONFIGS = {"standin": standin.StandInConfig(),
-           # the training simulator's timing and force signal (120 Hz law, wrist sensor, no filter), 20 N break
-           "like-training": standin.StandInConfig.like_training(break_force=standin.StandInConfig().break_force)}
+_DEFAULT = standin.StandInConfig()
+_PERTURBATION = _DEFAULT.perturbation
+CONFIGS = {
+    "standin": _DEFAULT,
+    # one difference from the training simulator removed at a time
+    "no-filter": dataclasses.replace(_DEFAULT, ema_alpha=1.0, break_force=math.inf),  # unbreakable: raw spikes
+    "wrist-sensor": dataclasses.replace(_DEFAULT, force_source="wrist"),
+    "no-delay": dataclasses.replace(_DEFAULT, perturbation=dataclasses.replace(_PERTURBATION, obs_delay_steps=0)),
+    "training-contact": dataclasses.replace(
+        _DEFAULT, perturbation=dataclasses.replace(_PERTURBATION, contact_timeconst=None, friction=None)),
+    "nominal-links": dataclasses.replace(
+        _DEFAULT, perturbation=dataclasses.replace(_PERTURBATION, link_mass_scale=None, armature_scale=None)),
+    # every physics difference removed (1 kHz law, estimated and filtered force)
+    "no-perturbation": dataclasses.replace(_DEFAULT, perturbation=standin.Perturbation.none()),
+    # the training simulator's timing and force signal (120 Hz law, wrist sensor, no filter), 20 N break
+    "like-training": standin.StandInConfig.like_training(break_force=_DEFAULT.break_force),
+}
 
 
 def phases(policy_path: str, trials: int, stochastic: bool, config_name: str = "standin") -> dict:
@@ -62,13 +80,19 @@ def main() -> None:
     parser.add_argument("--stochastic", default="", help="comma-separated names to run sampled")
     parser.add_argument("--trials", type=int, default=8)
     parser.add_argument("--config", choices=sorted(CONFIGS), default="standin",
-                        help="the stand-in as the protocol runs it, or with the training timing and force signal")
+                        help="the stand-in as the protocol runs it (default), with one difference from the training "
+                             "simulator removed, or with the training timing and force signal")
     parser.add_argument("--json", default=None)
     args = parser.parse_args()
     sampled = {n for n in args.stochastic.split(",") if n}
     out = {}
-    for item in args.policies.split(","):
-        name, path = item.split("=", 1)
+    policies = [item.split("=", 1) for item in args.policies.split(",")]
+    for item, pair in zip(args.policies.split(","), policies):
+        if len(pair) != 2 or not pathlib.Path(pair[1]).is_file():
+            parser.error(f"--policies: expected NAME=PATH.onnx with an existing file, got {item!r}")
+    if args.trials < 1:
+        parser.error(f"--trials must be >= 1, got {args.trials}")
+    for name, path in policies:
         out[name] = phases(path, args.trials, name in sampled, args.config)
         for key in ("mean_force_n", "before_mean_force_n", "after_mean_force_n", "after_contact_fraction",
                     "force_selected_contact_per_axis", "force_selected_free_per_axis"):
