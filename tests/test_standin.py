@@ -75,6 +75,25 @@ def test_filtered_force_and_the_break_on_a_scripted_ram(pose_description):
     assert settled["energy_j"] > 0 and settled["mean_force_n"] > 1.0
 
 
+def test_the_joint_torque_estimate_reads_what_the_wrist_sensor_reads(pose_description):
+    """The same scripted ram with each force source (unfiltered, unbreakable; a Pose law does not feed the force
+    back, so the trajectories are identical): the contact wrench estimated from the joint torques equals the
+    tared wrist sensor's once the payload is still, and differs only in the impact transients."""
+    results = {}
+    for source in ("wrist", "joint_torque"):
+        config = StandInConfig(perturbation=Perturbation.none(), break_force=math.inf, episode_steps=45,
+                               ema_alpha=1.0, force_source=source)
+        standin = StandIn(pose_description, config)
+        results[source] = standin.run(lambda obs: RAM, _on_the_rim(standin), record=True)
+    wrist, estimate = results["wrist"]["force_raw"], results["joint_torque"]["force_raw"]
+    np.testing.assert_array_equal(results["wrist"]["ee_pos"], results["joint_torque"]["ee_pos"])
+    np.testing.assert_allclose(estimate[-1], wrist[-1], atol=1e-3)
+    assert -2.5 < estimate[-1][2] < -1.5, "settled on the block: k_p x (target below the surface) = 2 N, down"
+    contact = np.linalg.norm(wrist, axis=1) > 1.0
+    assert contact.sum() > 1000
+    assert np.median(np.abs(estimate[contact] - wrist[contact]), axis=0).max() < 0.01
+
+
 def test_summary_intervals():
     lo, hi = wilson_interval(15, 30)
     assert lo < 0.5 < hi and hi - lo == pytest.approx(0.34, abs=0.01)
