@@ -398,7 +398,8 @@ class StandIn:
     def run(self, policy: Callable[[np.ndarray], np.ndarray], episode: Episode, record: bool = False) -> dict:
         """One trial of `policy` (raw observation -> action) from `episode`. Returns success, broken,
         time to success (s), mean and max filtered |F| (N; mean over control steps with |F| above the
-        contact threshold), energy = integral of |tau . qdot| (J), and with `record` per-policy-step
+        contact threshold), energy = integral of |tau . qdot| (J), a hybrid policy's force-selection counts
+        (`SELECTION_COUNTS`; None for other policies), and with `record` per-policy-step
         arrays (ee_pos, action, force) and per-control-step arrays (force_raw, force_filtered)."""
         cfg, m, d = self.config, self.model, self.data
         self._set_peg_offset(episode.peg_offset)
@@ -416,10 +417,19 @@ class StandIn:
         dt, steps = m.opt.timestep, cfg.control_steps
         success_step, broken, energy, max_force = None, False, 0.0, 0.0
         contact_force_sum, contact_samples = 0.0, 0
+        # hybrid policies: axis-steps in contact / free (the axis's filtered force at the start of the policy step
+        # above the contact threshold or not) and those of them on force control, whole trial and before success
+        selection_counts = dict.fromkeys(SELECTION_COUNTS, 0) if len(selection) else None
         rec = {"ee_pos": [], "action": [], "force": [], "force_raw": [], "force_filtered": []}
         for t in range(cfg.episode_steps):
             action = np.clip(policy(obs_queue[0]), -1.0, 1.0)
             action[selection] = np.clip(action[selection], 0.0, 1.0)
+            if selection_counts is not None:
+                touching, on_force = np.abs(force) > cfg.contact_threshold, action[selection] > 0.5
+                for part in ("", "before_success_") if success_step is None else ("",):
+                    for where, axes in (("contact", touching), ("free", ~touching)):
+                        selection_counts[f"{part}{where}_axis_steps"] += int(axes.sum())
+                        selection_counts[f"{part}force_selected_{where}_axis_steps"] += int((axes & on_force).sum())
             smoothed = ema * action + (1.0 - ema) * prev
             smoothed[selection] = action[selection]
             target = self._target(d, episode, smoothed)
@@ -460,7 +470,7 @@ class StandIn:
         result = {"success": success_step is not None, "broken": broken,
                   "time_to_success_s": None if success_step is None else (success_step + 1) * steps * dt,
                   "mean_force_n": contact_force_sum / contact_samples if contact_samples else None,
-                  "max_force_n": max_force, "energy_j": energy}
+                  "max_force_n": max_force, "energy_j": energy, "selection": selection_counts}
         if record:
             result.update({k: np.asarray(v) for k, v in rec.items()})
         return result
@@ -476,8 +486,29 @@ def wilson_interval(successes: int, trials: int, z: float = 1.96) -> tuple[float
     return centre - half, centre + half
 
 
+SELECTION_COUNTS = tuple(f"{part}{kind}{where}_axis_steps" for part in ("", "before_success_")
+                         for kind in ("", "force_selected_") for where in ("contact", "free"))
+
+
+def selection_rates(trials: list[dict]) -> dict | None:
+    """A hybrid policy's pooled force selection over `trials`: force-selected / all axis-steps in contact and
+    in free space, whole trial and before success (NaN where there is none), with the counts; None otherwise."""
+    counts = [t["selection"] for t in trials if t.get("selection") is not None]
+    if not counts:
+        return None
+    total = {key: sum(c[key] for c in counts) for key in SELECTION_COUNTS}
+    out = dict(total)
+    for part in ("", "before_success_"):
+        for where in ("contact", "free"):
+            steps = total[f"{part}{where}_axis_steps"]
+            hits = total[f"{part}force_selected_{where}_axis_steps"]
+            out[f"{part}force_selected_{where}_per_axis"] = hits / steps if steps else float("nan")
+    return out
+
+
 def summarize(trials: list[dict]) -> dict:
-    """Rates with 95 % Wilson intervals, and means (with 95 % normal intervals) of the trial metrics."""
+    """Rates with 95 % Wilson intervals, means (with 95 % normal intervals) of the trial metrics, and for
+    hybrid policies the pooled force selection (`selection_rates`)."""
     n = len(trials)
     out = {"trials": n}
     for name in ("success", "broken"):
@@ -489,6 +520,9 @@ def summarize(trials: list[dict]) -> dict:
         mean = float(values.mean()) if len(values) else float("nan")
         half = 1.96 * float(values.std(ddof=1)) / math.sqrt(len(values)) if len(values) > 1 else float("nan")
         out[name] = {"mean": mean, "ci95": (mean - half, mean + half), "n": int(len(values))}
+    selection = selection_rates(trials)
+    if selection is not None:
+        out["selection"] = selection
     return out
 
 

@@ -182,12 +182,16 @@ def transfer_claims(protocol: dict[str, list[Level]], sims: dict[str, list[dict]
 
 
 def table_lines(method: str, levels: list[Level], sim: list[dict], deployment: str = "deterministic") -> list[str]:
-    """One method's table: stand-in and training simulator per level; `deployment` of the stand-in's policy."""
+    """One method's table: stand-in and training simulator per level; `deployment` of the stand-in's policy.
+    For hybrid policies whose trials counted it, a last column: the share of in-contact axis-steps on force
+    control, stand-in / training simulator (whole episodes, per axis)."""
+    selection = any("selection" in lv.summary for lv in levels)
     lines = [f"### {LABELS.get(method, method)} ({levels[0].seed}, the best of the noiseless trials; "
              f"{deployment} on the stand-in)", "",
              "| noise (mm) | trials | success [95 %] | breaks | mean force (N) | max force (N) | energy (J) "
-             "| sim success | sim breaks | sim mean force (N) | gap (points) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| sim success | sim breaks | sim mean force (N) | gap (points) |"
+             + (" force control in contact, stand-in / sim |" if selection else ""),
+             "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if selection else "")]
     for lv in levels:
         s = lv.summary
         row = sim_at(sim, lv.level_mm, seed_index(lv.seed))
@@ -196,8 +200,21 @@ def table_lines(method: str, levels: list[Level], sim: list[dict], deployment: s
             _pct(row["success_rate"]), _pct(row["break_rate"]), f"{row['authors_mean_force_n']:.2f}")
         lines.append(f"| {lv.level_mm:g} | {s['trials']} | {_rate_ci(s, 'success')} | {_rate_ci(s, 'broken')} | "
                      f"{_mean_ci(s, 'mean_force_n')} | {_mean_ci(s, 'max_force_n')} | {_mean_ci(s, 'energy_j')} | "
-                     + " | ".join(sim_cells) + f" | {gap} |")
+                     + " | ".join(sim_cells) + f" | {gap} |"
+                     + (f" {_selection_cell(s, row)} |" if selection else ""))
     return lines
+
+
+def _selection_cell(summary: dict, sim_row: dict | None) -> str:
+    """'stand-in % (hits / axis-steps) / sim %' of in-contact axis-steps on force control."""
+    def pct(x):
+        return "-" if x is None or math.isnan(x) else f"{100 * x:.1f} %"
+
+    counts = summary.get("selection")
+    ours = "-" if counts is None else (f"{pct(counts['force_selected_contact_per_axis'])} ("
+                                       f"{counts['force_selected_contact_axis_steps']} / {counts['contact_axis_steps']})")
+    sim = "-" if sim_row is None else pct(sim_row.get("force_selected_contact_per_axis"))
+    return f"{ours} / {sim}"
 
 
 def plot(protocol: dict[str, list[Level]], sims: dict[str, list[dict]], path: pathlib.Path) -> None:

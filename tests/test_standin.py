@@ -94,6 +94,36 @@ def test_the_joint_torque_estimate_reads_what_the_wrist_sensor_reads(pose_descri
     assert np.median(np.abs(estimate[contact] - wrist[contact]), axis=0).max() < 0.01
 
 
+def test_a_hybrid_policys_force_selection_is_counted_per_axis_step():
+    """Pressing down on the block top by position control counts in-contact axis-steps and no force selection;
+    by force control on every axis, every axis-step is force-selected, in contact and free."""
+    description = export.env_description(FPiHEnv(FPiHConfig(control="hybrid")))
+    selection = description["action"]["selection_indices"]
+    standin = StandIn(description, StandInConfig(perturbation=Perturbation.none(), break_force=math.inf,
+                                                 episode_steps=30))
+    by_position = np.array(description["action"]["neutral"], np.float32)
+    by_position[selection] = 0.0
+    by_position[5] = -1.0  # pos_z: down at full speed
+    by_force = by_position.copy()
+    by_force[selection] = 1.0
+    by_force[8] = -0.25  # force_z: press down with 5 N
+    counts = {}
+    for name, action in (("position", by_position), ("force", by_force)):
+        trial = standin.run(lambda obs, a=action: a.copy(), _on_the_rim(standin))
+        counts[name] = summarize([trial, trial])["selection"]
+    position, force = counts["position"], counts["force"]
+    for rates in (position, force):
+        assert rates["contact_axis_steps"] > 0 and rates["free_axis_steps"] > 0
+        assert rates["contact_axis_steps"] + rates["free_axis_steps"] == 2 * 30 * 3
+        assert 0 < rates["before_success_contact_axis_steps"] <= rates["contact_axis_steps"]
+    # held on the rim, position control never succeeds: every axis-step is before success
+    assert position["before_success_contact_axis_steps"] == position["contact_axis_steps"]
+    assert position["force_selected_contact_per_axis"] == 0.0 and position["force_selected_free_per_axis"] == 0.0
+    assert force["force_selected_contact_per_axis"] == 1.0 and force["force_selected_free_per_axis"] == 1.0
+    pose = StandIn(export.env_description(FPiHEnv(FPiHConfig(control="pose"))), StandInConfig(episode_steps=2))
+    assert pose.run(lambda obs: RAM, _on_the_rim(pose))["selection"] is None
+
+
 def test_summary_intervals():
     lo, hi = wilson_interval(15, 30)
     assert lo < 0.5 < hi and hi - lo == pytest.approx(0.34, abs=0.01)

@@ -2,6 +2,7 @@
 
 import importlib.util
 import json
+import math
 import pathlib
 
 import numpy as np
@@ -102,6 +103,27 @@ def test_the_report_and_its_figure(tmp_path):
     assert "| MATCH applies less mean contact force than VICES (robot: up to ~30 % less) | holds |" in text
     with pytest.raises(SystemExit):
         transfer_report.main([str(tmp_path / "missing.json"), "--out", str(tmp_path / "out")])
+
+
+def test_a_hybrid_table_shows_its_force_selection_beside_the_sims():
+    trials = _trials(30, 20)
+    counts = dict.fromkeys(("contact_axis_steps", "free_axis_steps", "force_selected_contact_axis_steps",
+                            "force_selected_free_axis_steps", "before_success_contact_axis_steps",
+                            "before_success_free_axis_steps", "before_success_force_selected_contact_axis_steps",
+                            "before_success_force_selected_free_axis_steps"), 0)
+    for i, trial in enumerate(trials):
+        trial["selection"] = {**counts, "contact_axis_steps": 10, "force_selected_contact_axis_steps": i % 2}
+    summary = summarize(trials)
+    assert summary["selection"]["force_selected_contact_per_axis"] == pytest.approx(15 / 300)
+    assert math.isnan(summary["selection"]["force_selected_free_per_axis"])  # no free axis-step counted
+    level = transfer_report.Level(0.0, "policy_seed0", summary, trials)
+    sim = [_sim_row(0.0, "gaussian", [0.8])]
+    sim[0]["per_seed"][0]["force_selected_contact_per_axis"] = 0.32
+    lines = transfer_report.table_lines("match", [level], sim)
+    assert lines[2].endswith("| force control in contact, stand-in / sim |")
+    assert lines[4].endswith("| 5.0 % (15 / 300) / 32.0 % |")
+    plain = transfer_report.table_lines("pose", [level._replace(summary=summarize(_trials(30, 20)))], sim)
+    assert "force control" not in plain[2] and plain[4].endswith("| -13 |")
 
 
 def _protocol_script():
