@@ -1,9 +1,9 @@
 """Where an exported policy's mean contact force comes from on the stand-in: the filtered force estimate's
 samples above the contact threshold, split at the first success (before: search and insertion; after: the
-peg resting in the hole until the episode ends); for hybrid policies, the fraction of in-contact and of free
-axes on force control (per policy step and axis, as eval.py's per-axis rates). Noiseless trials, the protocol's
-episodes (seed 0); `--config` removes differences from the training simulator (`like-training`: its timing and
-force signal).
+peg resting in the hole until the episode ends); for hybrid policies, the in-contact and free axis-steps on
+force control (the stand-in's counts, per policy step and axis as eval.py's per-axis rates). Noiseless trials,
+the protocol's episodes (seed 0); `--config` removes differences from the training simulator (`like-training`:
+its timing and force signal).
 
     python benchmarks/standin_force_phases.py --policies pose=RUN/onnx/policy_seed0.onnx,vices=... \
         --stochastic pose --trials 8 --json results/transfer/dynamics_randomization/force_phases.json
@@ -42,7 +42,7 @@ CONFIGS = {
 def phases(policy_path: str, trials: int, stochastic: bool, config_name: str = "standin") -> dict:
     """Per trial: the stand-in's mean force (N) and, before and after the first success, the mean filtered
     force (N) over samples above the contact threshold and the fraction of samples above it; for hybrid
-    policies, the fraction of in-contact and of free axis-steps on force control, whole trial and before success."""
+    policies, the stand-in's force-selection counts (`standin.selection_rates` pools them)."""
     policy = standin.Policy(policy_path, noise_seed=(0, standin.ACTION_NOISE_STREAM) if stochastic else None)
     stand_in = standin.StandIn(policy.description, CONFIGS[config_name])
     rng, rows = np.random.default_rng(0), []
@@ -56,20 +56,7 @@ def phases(policy_path: str, trials: int, stochastic: bool, config_name: str = "
             contact = part > stand_in.config.contact_threshold
             row[f"{name}_contact_fraction"] = float(contact.mean()) if len(part) else None
             row[f"{name}_mean_force_n"] = float(part[contact].mean()) if contact.any() else None
-        selection = stand_in.actions["selection_indices"]
-        if selection:
-            force_axes = result["action"][:, selection] > 0.5  # (policy steps, axes)
-            # an axis is in contact when its filtered force at the start of the policy step (what the action
-            # was chosen on) is above the threshold, as eval.py's per-axis rates count the sim's contact force
-            seen = np.concatenate([np.zeros((1, 3)), result["force"][:-1]])
-            touching = np.abs(seen) > stand_in.config.contact_threshold  # (policy steps, 3)
-            policy_dt = stand_in.config.control_steps * stand_in.model.opt.timestep
-            steps = len(touching) if success_t is None else round(success_t / policy_dt)
-            before = (np.arange(len(touching)) < steps)[:, None]
-            for where, axes in (("contact", touching), ("free", ~touching),
-                                ("before_contact", touching & before), ("before_free", ~touching & before)):
-                row[f"force_selected_{where}_per_axis"] = float(force_axes[axes].mean()) if axes.any() else None
-                row[f"{where}_axis_steps"] = int(axes.sum())
+        row["selection"] = result["selection"]  # hybrid policies: the stand-in's force-selection counts
         rows.append(row)
     return {"policy": policy_path, "deployment": policy.deployment, "config": config_name, "trials": rows}
 
@@ -94,19 +81,18 @@ def main() -> None:
         parser.error(f"--trials must be >= 1, got {args.trials}")
     for name, path in policies:
         out[name] = phases(path, args.trials, name in sampled, args.config)
-        for key in ("mean_force_n", "before_mean_force_n", "after_mean_force_n", "after_contact_fraction",
-                    "force_selected_contact_per_axis", "force_selected_free_per_axis"):
-            values = [r[key] for r in out[name]["trials"] if r.get(key) is not None]
-            if not values:
+        for key in ("mean_force_n", "before_mean_force_n", "after_mean_force_n", "after_contact_fraction"):
+            values = [r[key] for r in out[name]["trials"] if r[key] is not None]
+            if not values:  # e.g. no success: nothing after it
                 continue
             print(f"{name} {key}: median {np.median(values):.2f} ({min(values):.2f}-{max(values):.2f})")
-        for where in ("contact", "free", "before_contact", "before_free"):
-            rows = [r for r in out[name]["trials"] if r.get(f"force_selected_{where}_per_axis") is not None]
-            if rows:
-                steps = sum(r[f"{where}_axis_steps"] for r in rows)
-                hits = sum(r[f"force_selected_{where}_per_axis"] * r[f"{where}_axis_steps"] for r in rows)
-                print(f"{name} force selected on {where.replace('_', ' ')} axes (pooled): {hits / steps:.3f} "
-                      f"of {steps} axis-steps")
+        pooled = standin.selection_rates(out[name]["trials"])
+        if pooled is not None:
+            out[name]["selection"] = pooled
+            for part, label in (("", "whole trials"), ("before_success_", "before success")):
+                for where in ("contact", "free"):
+                    hits, steps = (pooled[f"{part}{kind}{where}_axis_steps"] for kind in ("force_selected_", ""))
+                    print(f"{name} force control on {where} axis-steps, {label}: {hits} / {steps}")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(out, f, indent=1)
