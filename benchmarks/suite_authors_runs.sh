@@ -11,8 +11,6 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 runs=${1:?usage: suite_authors_runs.sh RUNS_DIR [NAMES]}
-all="pose vices hybrid match match_damped match_nossl hybrid_nossl pose_noise2.5 pose_unbreakable vices_unbreakable"
-all="$all hybrid_unbreakable match_unbreakable"
 names=${2:-pose hybrid match match_nossl hybrid_nossl pose_noise2.5 pose_unbreakable vices_unbreakable \
 hybrid_unbreakable match_unbreakable}
 export_dir=results/suite_authors
@@ -24,11 +22,10 @@ done
 for src in "$export_dir"/eval/*.json; do
   [ -e "$runs/eval/$(basename "$src")" ] || cp "$src" "$runs/eval/"
 done
-join() { local IFS=,; echo "$*"; }
 for name in $names; do
   python -m match_jax.experiments --out "$runs" --only "$name" "${sizes[@]}" --export "$export_dir"
-  # The report over every run evaluated so far (the run's own call reports only itself).
-  python -m match_jax.experiments --out "$runs" --only "$(join $all)" "${sizes[@]}" --export "$export_dir" \
-    --report-only
+  # The report over every run evaluated so far (no --only: every run of the task; the run's own call reports
+  # only itself).
+  python -m match_jax.experiments --out "$runs" "${sizes[@]}" --export "$export_dir" --report-only
   echo "[suite_authors_runs] $name evaluated and exported at $(date -u +%FT%TZ)"
 done
