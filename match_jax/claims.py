@@ -5,7 +5,9 @@ A claim "a is lower than b" *holds* when the 95 % interval of mean(a) - mean(b) 
 values) lies below 0, *does not hold* when it lies above 0, and is *inconclusive* otherwise. "a is as
 fast as b" holds when a is not significantly slower and its mean is at most 20 % above b's. Env steps
 of a seed that never reached the threshold are a lower bound (censored): a verdict that its true,
-larger value could overturn reads inconclusive.
+larger value could overturn reads inconclusive. "a and b are alike" (the paper's "no significant
+difference") holds when that interval contains 0. Claims on MATCH's selection profile compare means
+pooled over seeds (the profile is not kept per seed): no interval.
 """
 
 from __future__ import annotations
@@ -78,6 +80,17 @@ def verdict_as_fast(a, b, a_censored: bool = False, b_censored: bool = False) ->
     return HOLDS if diff <= AS_FAST_MARGIN * float(np.mean(_finite(b))) else INCONCLUSIVE
 
 
+def verdict_alike(a, b) -> str:
+    """Whether per-seed values `a` and `b` do not differ significantly: the 95 % interval of the difference
+    of means contains 0 (holds) or not (does not hold); inconclusive without an interval (one seed)."""
+    diff, lo, hi = difference_ci(a, b)
+    if math.isnan(diff):
+        return MISSING
+    if math.isnan(lo):
+        return INCONCLUSIVE
+    return HOLDS if lo <= 0.0 <= hi else FAILS
+
+
 def steps_to(env_steps: Sequence[float], success_rate: Sequence[float], threshold: float, window: int) -> float:
     """The first env-step count at which the mean training success of the last `window` iterations
     (NaN iterations skipped) reaches `threshold`; NaN if it never does."""
@@ -111,53 +124,124 @@ LAW_VARIANTS = (("match_literal", "MATCH with the authors' force law"),  # no fe
                 ("match_damped", "MATCH with the damped force law"))  # feed-forward and force-axis damping
 
 
-def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float], tuple[list, bool]]) -> list[Claim]:
-    """The paper's qualitative claims. `values(run, metric)`: per-seed evaluation values of a suite run
-    (metric names: 'success', 'break', 'force', 'force_contact', 'force_free', 'success_7.5',
-    'success_unbreakable_7.5'); empty if the run is missing. `steps(run, threshold)`: (per-seed env steps to
+PROFILE_APPROACH_MAX = 0.05  # "near 0 probability of force control" in the approach: below 5 % on every axis
+
+
+def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float], tuple[list, bool]],
+                 profile: Callable[[str], np.ndarray | None] = lambda run: None) -> list[Claim]:
+    """The paper's qualitative claims, in its order. `values(run, metric)`: per-seed values of a suite run,
+    empty if the run is missing; metrics: at the training noise 'success', 'break', 'force',
+    'force_contact', 'force_free'; on the shells 'success_7.5' (the 5-7.5 mm shell), 'break_1' and
+    'break_7.5' (first and last shell), 'break_shells' (mean over the shells); evaluated unbreakable
+    'success_unbreakable_7.5'; training means 'contact_training' (fraction of env steps in contact) and
+    'p_force_free_training' (P(force) on free-space axes). `steps(run, threshold)`: (per-seed env steps to
     that training success, whether any of them is a lower bound: a seed that never reached it, counted at
-    the env steps it trained). A claim whose runs are missing reads 'not run'."""
+    the env steps it trained). `profile(run)`: P(force) per phase (approach, contact, insertion) and axis
+    (x, y, z), pooled over seeds and time, or None. A claim whose runs are missing reads 'not run'."""
     claims = []
+
+    def newton(x):
+        return "-" if math.isnan(_mean(x)) else f"{_mean(x):.2f} N"
 
     def lower(text, a_run, b_run, metric, fmt=_pct):
         a, b = values(a_run, metric), values(b_run, metric)
         claims.append(Claim(text, verdict_lower(a, b), f"{fmt(a)} vs {fmt(b)}"))
 
+    def alike(text, a_run, b_run, metric_a, metric_b=None):
+        a, b = values(a_run, metric_a), values(b_run, metric_b or metric_a)
+        claims.append(Claim(text, verdict_alike(a, b), f"{_pct(a)} vs {_pct(b)}"))
+
     def steps_fmt(x, censored):
         return "-" if math.isnan(_mean(x)) else (">= " if censored else "") + f"{_mean(x) / 1e6:.2f}M"
 
-    for hybrid in ("hybrid", "match"):
-        lower(f"{'Hybrid-Basic' if hybrid == 'hybrid' else 'MATCH'} breaks less than Pose (10 N, training noise)",
-              hybrid, "pose", "break")
+    hybrids = (("hybrid", "Hybrid-Basic"), ("match", "MATCH"))
+    # How effective are hybrid control policies (Table 1, training noise)?
+    for other, other_label in (("pose", "Pose"), ("vices", "VICES")):
+        for hybrid, label in hybrids:
+            lower(f"{label} breaks less than {other_label} (10 N, training noise)", hybrid, other, "break")
     variants = tuple((run, label) for run, label in LAW_VARIANTS if len(values(run, "success")))
-    for hybrid, label in (("hybrid", "Hybrid-Basic"), ("match", "MATCH"), *variants):
-        a, b = values("pose", "success"), values(hybrid, "success")
-        claims.append(Claim(f"{label} succeeds more often than Pose", verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
+    for other, other_label in (("pose", "Pose"), ("vices", "VICES")):
+        for hybrid, label in (*hybrids, *(variants if other == "pose" else ())):
+            a, b = values(other, "success"), values(hybrid, "success")
+            claims.append(Claim(f"{label} succeeds more often than {other_label}", verdict_lower(a, b),
+                                f"{_pct(b)} vs {_pct(a)}"))
+    breaks = _finite(values("match", "break"))
+    claims.append(Claim("MATCH never breaks the peg at the training noise (paper: 0 of 500 episodes)",
+                        MISSING if not len(breaks) else HOLDS if not breaks.any() else FAILS, _pct(breaks)))
+    for other, other_label in (("pose", "Pose"), ("vices", "VICES")):
+        for hybrid, label in hybrids:
+            lower(f"{other_label} applies less mean contact force than {label}", other, hybrid, "force", newton)
+    # Does MATCH improve learning efficiency?
     for run, label in (("match", "MATCH"), *variants):
         (a, a_cens), (b, b_cens) = steps(run, 0.8), steps("pose", 0.8)
         claims.append(Claim(f"{label} learns as fast as Pose (env steps to 80 % training success)",
                             verdict_as_fast(a, b, a_cens, b_cens), f"{steps_fmt(a, a_cens)} vs {steps_fmt(b, b_cens)}"))
-    (a, a_cens), (b, b_cens) = steps("match", 0.8), steps("hybrid", 0.8)
-    claims.append(Claim("Hybrid-Basic learns slower than MATCH (env steps to 80 %)", verdict_lower(a, b, a_cens, b_cens),
-                        f"{steps_fmt(b, b_cens)} vs {steps_fmt(a, a_cens)}"))
+    for threshold, what in ((0.5, "begins learning later than MATCH (env steps to 50 %)"),
+                            (0.8, "learns slower than MATCH (env steps to 80 %)")):
+        (a, a_cens), (b, b_cens) = steps("match", threshold), steps("hybrid", threshold)
+        claims.append(Claim(f"Hybrid-Basic {what}", verdict_lower(a, b, a_cens, b_cens),
+                            f"{steps_fmt(b, b_cens)} vs {steps_fmt(a, a_cens)}"))
+    # What effect does the supervised selection loss have?
     for run, label in (("match", "MATCH"), ("hybrid", "Hybrid-Basic")):
-        a, b = values(f"{run}_nossl", "success"), values(run, "success")
-        claims.append(Claim(f"{label} without the SSL succeeds less often", verdict_lower(a, b),
+        nossl = f"{run}_nossl"
+        a, b = values(nossl, "success"), values(run, "success")
+        gap = "15" if run == "match" else "11.2"
+        claims.append(Claim(f"{label} without the SSL succeeds less often (paper: {gap} points)", verdict_lower(a, b),
                             f"{_pct(a)} vs {_pct(b)}"))
-    for pose, pose_label in (("pose", "Pose"), ("pose_noise2.5", "Pose trained at 2.5 mm")):
-        for hybrid, label in (("match", "MATCH"), ("hybrid", "Hybrid-Basic")):
-            a, b = values(pose, "success_7.5"), values(hybrid, "success_7.5")
-            claims.append(Claim(f"{label} degrades less with noise than {pose_label} (success at the 7.5 mm noise level)",
-                                verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
+        lower(f"{label} breaks less often than without the SSL (paper: {'8.2' if run == 'match' else '2.2'} points)",
+              run, nossl, "break")
+        lower(f"{label} without the SSL applies less mean contact force", nossl, run, "force", newton)
+        lower(f"{label} without the SSL is in contact less during training (paper: 3x less)", nossl, run,
+              "contact_training")
+        p_free = _finite(values(nossl, "p_force_free_training"))
+        claims.append(Claim(f"{label} without the SSL selects force below 0.1 % during training (free-space axes)",
+                            MISSING if not len(p_free) else HOLDS if _mean(p_free) < 0.001 else FAILS,
+                            "-" if not len(p_free) else f"{100 * _mean(p_free):.2f} %"))
+    # Does MATCH learn a meaningful selection policy?
     contact, free = values("match", "force_contact"), values("match", "force_free")
     in_contact = MISSING if not len(_finite(contact)) else HOLDS if _mean(contact) > 0.5 else FAILS
     claims.append(Claim("MATCH selects force on most in-contact axes (paper: 84 %)", in_contact, _pct(contact)))
     rarely = MISSING if not len(_finite(free)) else HOLDS if _mean(free) < 0.1 else FAILS
     claims.append(Claim("MATCH rarely selects force on free-space axes (paper: 2.9 %)", rarely, _pct(free)))
-    lower("Pose applies less mean contact force than MATCH (Pose vs MATCH)", "pose", "match", "force",
-          fmt=lambda x: "-" if math.isnan(_mean(x)) else f"{_mean(x):.2f} N")
-    for run, label in (("match_unbreakable", "MATCH"), ("vices_unbreakable", "VICES")):
+    claims += _profile_claims(profile("match"))
+    # How robust are hybrid control policies to noise?
+    for pose, pose_label in (("pose", "Pose"), ("pose_noise2.5", "Pose trained at 2.5 mm")):
+        for hybrid, label in (("match", "MATCH"), ("hybrid", "Hybrid-Basic")):
+            a, b = values(pose, "success_7.5"), values(hybrid, "success_7.5")
+            claims.append(Claim(f"{label} degrades less with noise than {pose_label} (success at the 7.5 mm noise "
+                                "level)", verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
+    for hybrid, label in hybrids:
+        lower(f"{label} breaks less than Pose under noise (break %, mean over the shells; paper: less than half)",
+              hybrid, "pose", "break_shells")
+    for hybrid, label in hybrids:
+        alike(f"VICES and {label} succeed alike at the 7.5 mm noise level (no significant difference)",
+              "vices", hybrid, "success_7.5")
+        alike(f"VICES and {label} break alike under noise (mean over the shells; no significant difference)",
+              "vices", hybrid, "break_shells")
+    for run, label in (("pose", "Pose"), ("vices", "VICES"), *hybrids):
+        alike(f"{label}'s break rate is about constant with noise (first vs last shell; no significant difference)",
+              run, run, "break_1", "break_7.5")
+    # How are hybrid control policies on unconstrained tasks?
+    for run, label, gain in (("match_unbreakable", "MATCH", "17.1"), ("vices_unbreakable", "VICES", "21.1")):
         a, b = values("pose_unbreakable", "success_unbreakable_7.5"), values(run, "success_unbreakable_7.5")
-        claims.append(Claim(f"Trained unbreakable, {label} is more robust to noise than Pose (success at the 7.5 mm noise level)",
-                            verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
+        claims.append(Claim(f"Trained unbreakable, {label} is more robust to noise than Pose (success at the 7.5 mm "
+                            f"noise level; paper: +{gain} points)", verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
     return claims
+
+
+def _profile_claims(p: np.ndarray | None) -> list[Claim]:
+    """The shape of MATCH's selection profile `p` (phase x axis P(force), pooled over seeds): near 0 in the
+    approach, a rise on z after contact, a decline on z for insertion, x and y below z in contact."""
+    texts = ("MATCH hardly selects force in the approach (P(force) below 5 % on every axis; paper: near 0)",
+             "MATCH selects force on z more in contact than in the approach (paper: a spike, most on z)",
+             "MATCH selects force on z less in insertion than in contact (paper: declines)",
+             "In contact, MATCH selects force on x and y less than on z (paper: xy largely pose)")
+    if p is None:
+        return [Claim(t, MISSING, "-") for t in texts]
+    p = 100 * np.asarray(p, np.float64)
+    (approach, contact, insertion), z = p, 2
+    checks = ((approach.max() < 100 * PROFILE_APPROACH_MAX, f"max {approach.max():.1f} %"),
+              (contact[z] > approach[z], f"{contact[z]:.1f} % vs {approach[z]:.1f} %"),
+              (insertion[z] < contact[z], f"{insertion[z]:.1f} % vs {contact[z]:.1f} %"),
+              (contact[:z].max() < contact[z], f"x {contact[0]:.1f} %, y {contact[1]:.1f} % vs z {contact[z]:.1f} %"))
+    return [Claim(t, HOLDS if ok else FAILS, numbers) for t, (ok, numbers) in zip(texts, checks)]

@@ -114,20 +114,39 @@ _CLAIM_METRICS = {"success": ("gaussian", None, True, "success_rate"), "break": 
                   "force_contact": ("gaussian", None, True, "force_selected_contact_per_axis"),
                   "force_free": ("gaussian", None, True, "force_selected_free_per_axis"),
                   "success_7.5": ("sweep", 7.5, True, "success_rate"),
+                  "break_1": ("sweep", 1.0, True, "break_rate"), "break_7.5": ("sweep", 7.5, True, "break_rate"),
                   "success_unbreakable_7.5": ("sweep", 7.5, False, "success_rate")}
+_CLAIM_TRAINING = {"contact_training": "contact_fraction", "p_force_free_training": "p_force_free_axis"}
+SHELLS_MM = tuple(x for x in SWEEP_MM if x > 0)
+
+
+def pooled_profile(profile: dict) -> np.ndarray:
+    """P(force) per phase (approach, contact, insertion) and axis from an evaluation's selection profile,
+    pooled over its time bins (weighted by their steps)."""
+    mean, count = np.asarray(profile["mean"], np.float64), np.asarray(profile["count"], np.float64)
+    weights = count[..., None]
+    return np.nansum(np.nan_to_num(mean) * weights, axis=1) / np.maximum(weights.sum(axis=1), 1.0)
 
 
 def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict], task: str = "authors") -> list[claims.Claim]:
-    """The paper's qualitative claims on this suite's per-seed evaluations and learning curves. Mean force
-    is the authors' definition on their task (`task='authors'`), ours on the earlier variant."""
+    """The paper's qualitative claims on this suite's per-seed evaluations and learning curves of finished
+    runs. Mean force is the authors' definition on their task (`task='authors'`), ours on the earlier variant."""
     def values(name, metric):
         if name not in results:
             return []
-        noise_type, noise_mm, breakable, key = _CLAIM_METRICS[metric]
+        if metric in _CLAIM_TRAINING:  # mean over training, per seed
+            return [] if name not in curves else list(np.nanmean(curves[name][_CLAIM_TRAINING[metric]], axis=1))
+        breakable = not unbreakable(name)
+        if metric == "break_shells":
+            rows = [_row(results[name], sweep_type(results[name]), x, breakable) for x in SHELLS_MM]
+            if not breakable or any(r is None for r in rows):
+                return []
+            return list(np.mean([[s["break_rate"] for s in r["per_seed"]] for r in rows], axis=0))
+        noise_type, noise_mm, breakable_metric, key = _CLAIM_METRICS[metric]
         if metric == "force" and task == "authors":
             key = "authors_mean_force_n"
         row = _table1_row(results[name]) if noise_type == "gaussian" else _row(
-            results[name], sweep_type(results[name]), noise_mm, breakable and not unbreakable(name))
+            results[name], sweep_type(results[name]), noise_mm, breakable_metric and breakable)
         return [] if row is None else [s.get(key) for s in row["per_seed"]]
 
     def steps(name, threshold):
@@ -137,7 +156,11 @@ def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict], task: 
         values = steps_to(curves[name], threshold)
         return [trained if math.isnan(x) else x for x in values], any(math.isnan(x) for x in values)
 
-    return claims.check_claims(values, steps)
+    def profile(name):
+        row = _table1_row(results[name]) if name in results else {}
+        return pooled_profile(row["selection_profile"]) if row.get("selection_profile") else None
+
+    return claims.check_claims(values, steps, profile)
 
 
 def _table1_lines(results: dict[str, list[dict]]) -> list[str]:
@@ -353,8 +376,11 @@ def _claims_lines(results: dict[str, list[dict]], curves: dict[str, dict], task:
               "A claim holds when the 95 % interval (Welch) of the difference of the seeds' means lies on its side "
               "of 0, does not hold when it lies on the other side, and is inconclusive otherwise; 'as fast as' "
               f"holds when not significantly slower and within {100 * claims.AS_FAST_MARGIN:g} % in mean. A seed "
-              "that never reached 80 % counts at the env steps it trained (shown as >=): a lower bound, so a "
-              "verdict it could overturn reads inconclusive. Mean force: "
+              "that never reached the threshold counts at the env steps it trained (shown as >=): a lower bound, so "
+              "a verdict it could overturn reads inconclusive. 'Alike' (the paper's 'no significant difference') "
+              "holds when the interval contains 0. The selection-profile claims compare MATCH's phase means pooled "
+              "over seeds (no interval); 'the shells': the mean of the four shells' break rates per seed. Mean "
+              "force: "
               + ("the authors' definition (end-of-step force signal pooled over every step with some axis in "
                  "contact)." if task == "authors" else "ours (mean contact force per episode)."), "",
               "| claim | verdict | ours |", "|---|---|---|"]

@@ -83,7 +83,7 @@ def test_check_claims_reads_the_right_runs_and_metrics():
     assert found["Hybrid-Basic learns slower than MATCH (env steps to 80 %)"].verdict == claims.HOLDS
     assert found["MATCH selects force on most in-contact axes (paper: 84 %)"].verdict == claims.HOLDS
     assert found["MATCH rarely selects force on free-space axes (paper: 2.9 %)"].verdict == claims.FAILS
-    assert found["MATCH without the SSL succeeds less often"].verdict == claims.MISSING
+    assert found["MATCH without the SSL succeeds less often (paper: 15 points)"].verdict == claims.MISSING
     # MATCH with the authors' force law is read from its own run, against Pose
     literal = found["MATCH with the authors' force law succeeds more often than Pose"]
     assert literal.verdict == claims.HOLDS and literal.numbers == "97.0 % vs 88.0 %"
@@ -107,8 +107,93 @@ def test_suite_claims_read_the_mean_force_of_the_task_protocol():
         return [{"noise_type": "gaussian", "noise_mm": 1.0, "break_force_n": 10.0, "per_seed": seeds}]
 
     results = {"pose": grid([0.7, 0.7, 0.7], [1.0, 1.1, 0.9]), "match": grid([0.7, 0.7, 0.7], [3.0, 3.1, 2.9])}
-    text = "Pose applies less mean contact force than MATCH (Pose vs MATCH)"
+    text = "Pose applies less mean contact force than MATCH"
     authors = {c.text: c for c in report.suite_claims(results, {}, task="authors")}[text]
     earlier = {c.text: c for c in report.suite_claims(results, {}, task="earlier")}[text]
     assert authors.verdict == claims.HOLDS and authors.numbers == "1.00 N vs 3.00 N"
     assert earlier.verdict == claims.INCONCLUSIVE and earlier.numbers == "0.70 N vs 0.70 N"
+
+
+def test_verdict_alike_holds_when_the_interval_contains_zero():
+    assert claims.verdict_alike([0.1, 0.2, 0.15], [0.12, 0.18, 0.2]) == claims.HOLDS
+    assert claims.verdict_alike([0.1, 0.11, 0.12], [0.3, 0.31, 0.29]) == claims.FAILS
+    assert claims.verdict_alike([0.1], [0.3]) == claims.INCONCLUSIVE  # one seed each: no interval
+    assert claims.verdict_alike([], [0.3, 0.2]) == claims.MISSING
+
+
+def _found(table, profile=None):
+    return {c.text: c for c in claims.check_claims(lambda run, metric: table.get((run, metric), []),
+                                                   lambda run, threshold: ([], False),
+                                                   lambda run: profile if run == "match" else None)}
+
+
+def test_zero_break_claim_needs_every_seed_at_zero():
+    text = "MATCH never breaks the peg at the training noise (paper: 0 of 500 episodes)"
+    assert _found({("match", "break"): [0.0, 0.0, 0.0]})[text].verdict == claims.HOLDS
+    assert _found({("match", "break"): [0.0, 0.002, 0.0]})[text].verdict == claims.FAILS
+    assert _found({})[text].verdict == claims.MISSING
+
+
+def test_ssl_claims_compare_each_method_with_its_ablation():
+    table = {("match", "break"): [0.0, 0.01, 0.0], ("match_nossl", "break"): [0.2, 0.25, 0.3],
+             ("match", "contact_training"): [0.3, 0.32, 0.31], ("match_nossl", "contact_training"): [0.1, 0.11, 0.09],
+             ("match_nossl", "p_force_free_training"): [0.0005, 0.0002, 0.0003],
+             ("hybrid_nossl", "p_force_free_training"): [0.01, 0.02, 0.01]}
+    found = _found(table)
+    assert found["MATCH breaks less often than without the SSL (paper: 8.2 points)"].verdict == claims.HOLDS
+    contact = found["MATCH without the SSL is in contact less during training (paper: 3x less)"]
+    assert contact.verdict == claims.HOLDS and contact.numbers == "10.0 % vs 31.0 %"
+    selects = "without the SSL selects force below 0.1 % during training (free-space axes)"
+    assert found[f"MATCH {selects}"].verdict == claims.HOLDS
+    assert found[f"Hybrid-Basic {selects}"].verdict == claims.FAILS
+    assert found["Hybrid-Basic breaks less often than without the SSL (paper: 2.2 points)"].verdict == claims.MISSING
+
+
+def test_noise_claims_read_shell_breaks_and_no_difference():
+    table = {("pose", "break_shells"): [0.2, 0.25, 0.3], ("match", "break_shells"): [0.05, 0.06, 0.04],
+             ("vices", "break_shells"): [0.05, 0.07, 0.05], ("vices", "success_7.5"): [0.4, 0.1, 0.3],
+             ("match", "success_7.5"): [0.35, 0.3, 0.2], ("pose", "break_1"): [0.1, 0.12, 0.11],
+             ("pose", "break_7.5"): [0.3, 0.31, 0.29]}
+    found = _found(table)
+    assert found["MATCH breaks less than Pose under noise (break %, mean over the shells; paper: less than half)"]\
+        .verdict == claims.HOLDS
+    assert found["VICES and MATCH succeed alike at the 7.5 mm noise level (no significant difference)"]\
+        .verdict == claims.HOLDS
+    assert found["Pose's break rate is about constant with noise (first vs last shell; no significant difference)"]\
+        .verdict == claims.FAILS
+
+
+def test_profile_claims_read_the_phase_shape():
+    """Rows: approach, contact, insertion; columns x, y, z. The paper's shape holds; a flat profile
+    with force in the approach fails three of the four."""
+    paper_like = np.array([[0.01, 0.01, 0.02], [0.1, 0.1, 0.6], [0.05, 0.05, 0.2]])
+    assert all(_found({}, paper_like)[t].verdict == claims.HOLDS for t in _PROFILE_TEXTS)
+    flat = np.full((3, 3), 0.3)
+    assert [_found({}, flat)[t].verdict for t in _PROFILE_TEXTS] == [claims.FAILS] * 4
+    assert all(_found({})[t].verdict == claims.MISSING for t in _PROFILE_TEXTS)
+
+
+_PROFILE_TEXTS = ("MATCH hardly selects force in the approach (P(force) below 5 % on every axis; paper: near 0)",
+                  "MATCH selects force on z more in contact than in the approach (paper: a spike, most on z)",
+                  "MATCH selects force on z less in insertion than in contact (paper: declines)",
+                  "In contact, MATCH selects force on x and y less than on z (paper: xy largely pose)")
+
+
+def test_suite_claims_pool_the_profile_and_average_the_shells():
+    """report.suite_claims: the selection profile is pooled over time bins weighted by their steps; the
+    shell break metric is the per-seed mean over the four shells."""
+    from match_jax import report
+    profile = {"mean": [[[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]], [[0.0, 0.0, 0.5]] * 2, [[0.0, 0.0, 0.1]] * 2],
+               "count": [[3, 1], [2, 2], [1, 1]]}
+    pooled = report.pooled_profile(profile)
+    assert pooled[0].tolist() == pytest.approx([0.0, 0.0, 0.25]) and pooled[1][2] == pytest.approx(0.5)
+    shells = [{"noise_type": "shell", "noise_mm": x, "break_force_n": 10.0,
+               "per_seed": [{"break_rate": x / 10, "success_rate": 0.5}, {"break_rate": 0.0, "success_rate": 0.5}]}
+              for x in report.SHELLS_MM]
+    gaussian = {"noise_type": "gaussian", "noise_mm": 1.0, "break_force_n": 10.0, "selection_profile": profile,
+                "per_seed": [{"break_rate": 0.0}, {"break_rate": 0.0}]}
+    found = {c.text: c for c in report.suite_claims({"match": [gaussian, *shells]}, {})}
+    mean_shells = 100 * sum(report.SHELLS_MM) / 10 / len(report.SHELLS_MM) / 2
+    assert found["MATCH breaks less than Pose under noise (break %, mean over the shells; paper: less than half)"]\
+        .numbers == f"{mean_shells:.1f} % vs -"
+    assert found[_PROFILE_TEXTS[0]].verdict == claims.FAILS and found[_PROFILE_TEXTS[0]].numbers == "max 25.0 %"
