@@ -2,7 +2,7 @@
 
     python benchmarks/run_figures.py RUN_DIR OUT [LABEL]
 (reads RUN_DIR/metrics.csv, OUT/eval.json and OUT/noise_sweep*.json; writes learning_curve.png,
-selection_profile.png and noise_robustness.png into OUT)
+selection_profile.png, noise_robustness.png and unbreakable_robustness.png into OUT)
 """
 import json
 import pathlib
@@ -29,4 +29,5 @@ for name in ("noise_sweep.json", "noise_sweep_unbreakable.json"):  # breakable a
         sweep += json.loads((out / name).read_text())["noise_sweep"]
 if sweep:
     plots.noise_robustness({label: sweep}, out / "noise_robustness.png")
+    plots.unbreakable_robustness({label: sweep}, out / "unbreakable_robustness.png")
 print("wrote", sorted(p.name for p in out.glob("*.png")))

@@ -16,8 +16,8 @@ variant; --sweep-episodes per seed), each with the run's break force and unbreak
 Resumable: finished runs and evaluations are skipped, interrupted runs resume from their checkpoint.
 An exported suite (--export: report, eval JSONs, best actors) copied into OUT counts its runs as trained
 (same configuration, full step budget) and evaluated, so a suite continues from its committed results.
-Writes OUT/runs/<name>/ (training), OUT/eval/<name>.json, and OUT/REPORT.md with
-learning_curves.png, noise_robustness.png and selection_profile.png (`match_jax.report`). The runs and their
+Writes OUT/runs/<name>/ (training), OUT/eval/<name>.json, and OUT/REPORT.md with learning_curves.png,
+noise_robustness.png, unbreakable_robustness.png and selection_profile.png (`match_jax.report`). The runs and their
 settings: `match_jax.suite`.
 """
 

@@ -395,8 +395,9 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     plots.learning_curves({_label(n, results, curves): c for n, c in curves.items()}, out / "learning_curves.png",
                           smooth=1 if cfg.smoke else 5)
     kind = sweep_type(results)
-    plots.noise_robustness({SUITE[n].label: [r for r in g if r["noise_type"] == kind] for n, g in results.items()},
-                           out / "noise_robustness.png")
+    sweeps = {SUITE[n].label: [r for r in g if r["noise_type"] == kind] for n, g in results.items()}
+    plots.noise_robustness(sweeps, out / "noise_robustness.png")
+    plots.unbreakable_robustness(sweeps, out / "unbreakable_robustness.png")
     profiles = {SUITE[n].label: _table1_row(g)["selection_profile"] for n, g in results.items() if n in HYBRID}
     stale_profile = out / "selection_profile.png"
     if profiles:
@@ -423,8 +424,10 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     finished = {n: c for n, c in curves.items() if n in results}
     lines += _learning_lines(curves, results) + _early_lines(curves, results) + _claims_lines(results, finished, cfg.task)
     lines += ["", "## Figures", "", "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
-              "- `noise_robustness.png`: success and break rate vs the noise sweep's level, breakable and unbreakable (error bars: "
-              "standard error over seeds)"]
+              "- `noise_robustness.png`: success (top) and break rate (bottom) vs the noise sweep's level, breakable "
+              "peg; mean and 95 % interval over seeds",
+              "- `unbreakable_robustness.png`: success vs the noise sweep's level, unbreakable peg (runs trained "
+              "unbreakable dashed); mean and 95 % interval over seeds"]
     if profiles:
         lines += ["- `selection_profile.png`: P(force) per axis over approach / contact / insertion (time-normalised)"]
     lines += [""]

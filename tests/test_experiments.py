@@ -21,7 +21,7 @@ def _check_report_and_export(out, shipped):
     assert "Smoke run" in report and "95.4" in report  # the paper's numbers beside ours
     assert "steps to 80 %" in report and "| MATCH breaks less than Pose (10 N, training noise) |" in report
     assert (shipped / "REPORT.md").read_text() == report and (shipped / "eval" / "match.json").exists()
-    for name in ("learning_curves.png", "noise_robustness.png", "selection_profile.png"):
+    for name in ("learning_curves.png", "noise_robustness.png", "unbreakable_robustness.png", "selection_profile.png"):
         data = (out / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000, name
 
