@@ -172,7 +172,7 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
         for hybrid, label in hybrids:
             lower(f"{other_label} applies less mean contact force than {label}", other, hybrid, "force", newton)
     # Does MATCH improve learning efficiency?
-    for run, label in (("match", "MATCH"), *variants):
+    for run, label in (("match", "MATCH"), ("vices", "VICES"), *variants):
         (a, a_cens), (b, b_cens) = steps(run, 0.8), steps("pose", 0.8)
         claims.append(Claim(f"{label} learns as fast as Pose (env steps to 80 % training success)",
                             verdict_as_fast(a, b, a_cens, b_cens), f"{steps_fmt(a, a_cens)} vs {steps_fmt(b, b_cens)}"))
@@ -191,6 +191,9 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
         lower(f"{label} breaks less often than without the SSL (paper: {'8.2' if run == 'match' else '2.2'} points)",
               run, nossl, "break")
         lower(f"{label} without the SSL applies less mean contact force", nossl, run, "force", newton)
+        (a, a_cens), (b, b_cens) = steps(run, 0.8), steps(nossl, 0.8)
+        claims.append(Claim(f"{label} without the SSL learns slower (env steps to 80 %)",
+                            verdict_lower(a, b, a_cens, b_cens), f"{steps_fmt(b, b_cens)} vs {steps_fmt(a, a_cens)}"))
         lower(f"{label} without the SSL is in contact less during training (paper: 3x less)", nossl, run,
               "contact_training")
         p_free = _finite(values(nossl, "p_force_free_training"))
