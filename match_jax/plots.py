@@ -81,13 +81,13 @@ def _sweep_lines(ax, sweeps: dict[str, list[dict]], column: str, unbreakable: bo
     without a break force; mean and 95 % t-interval over the seeds' values, runs dodged along x so their
     intervals stay apart. The y axis spans 0-100 %, or 0 to just above the highest interval when under 50 %."""
     top = 0.0
-    for i, (name, results) in enumerate(sweeps.items()):
-        rows = sorted((r for r in results if (r["break_force_n"] is None) == unbreakable), key=lambda r: r["noise_mm"])
-        if not rows:
-            continue
+    plotted = {name: sorted((r for r in results if (r["break_force_n"] is None) == unbreakable),
+                            key=lambda r: r["noise_mm"]) for name, results in sweeps.items()}
+    plotted = {name: rows for name, rows in plotted.items() if rows}
+    for i, (name, rows) in enumerate(plotted.items()):
         per_seed = np.array([[np.nan if s.get(column) is None else s[column] for s in r["per_seed"]] for r in rows]).T
         mean, half = mean_and_ci95(100 * per_seed)
-        dodge = DODGE_MM * (i - (len(sweeps) - 1) / 2)
+        dodge = DODGE_MM * (i - (len(plotted) - 1) / 2)
         ax.errorbar([r["noise_mm"] + dodge for r in rows], mean, yerr=half, marker="o", capsize=3, label=name,
                     **styles[name])
         top = max(top, float(np.nanmax(mean + half, initial=0.0)))

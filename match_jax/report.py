@@ -113,6 +113,7 @@ _CLAIM_METRICS = {"success": ("gaussian", None, True, "success_rate"), "break": 
                   "force": ("gaussian", None, True, "mean_force_n"),
                   "force_contact": ("gaussian", None, True, "force_selected_contact_per_axis"),
                   "force_free": ("gaussian", None, True, "force_selected_free_per_axis"),
+                  "success_1": ("sweep", 1.0, True, "success_rate"),
                   "success_7.5": ("sweep", 7.5, True, "success_rate"),
                   "break_1": ("sweep", 1.0, True, "break_rate"), "break_7.5": ("sweep", 7.5, True, "break_rate"),
                   "success_unbreakable_7.5": ("sweep", 7.5, False, "success_rate")}
@@ -122,10 +123,12 @@ SHELLS_MM = tuple(x for x in SWEEP_MM if x > 0)
 
 def pooled_profile(profile: dict) -> np.ndarray:
     """P(force) per phase (approach, contact, insertion) and axis from an evaluation's selection profile,
-    pooled over its time bins (weighted by their steps)."""
+    pooled over its time bins (weighted by their steps); NaN for a phase without steps."""
     mean, count = np.asarray(profile["mean"], np.float64), np.asarray(profile["count"], np.float64)
     weights = count[..., None]
-    return np.nansum(np.nan_to_num(mean) * weights, axis=1) / np.maximum(weights.sum(axis=1), 1.0)
+    total = weights.sum(axis=1)
+    pooled = np.nansum(np.nan_to_num(mean) * weights, axis=1) / np.maximum(total, 1.0)
+    return np.where(total > 0, pooled, np.nan)  # a phase no episode reached: NaN
 
 
 def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict], task: str = "authors") -> list[claims.Claim]:
@@ -134,14 +137,21 @@ def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict], task: 
     def values(name, metric):
         if name not in results:
             return []
-        if metric in _CLAIM_TRAINING:  # mean over training, per seed
-            return [] if name not in curves else list(np.nanmean(curves[name][_CLAIM_TRAINING[metric]], axis=1))
+        if metric in _CLAIM_TRAINING:  # per seed, mean over the second half of training (after the start)
+            if name not in curves:
+                return []
+            logged = curves[name][_CLAIM_TRAINING[metric]]
+            return list(np.nanmean(logged[:, logged.shape[1] // 2:], axis=1))
         breakable = not unbreakable(name)
         if metric == "break_shells":
             rows = [_row(results[name], sweep_type(results[name]), x, breakable) for x in SHELLS_MM]
             if not breakable or any(r is None for r in rows):
                 return []
-            return list(np.mean([[s["break_rate"] for s in r["per_seed"]] for r in rows], axis=0))
+            per_seed = [[np.nan if s.get("break_rate") is None else s["break_rate"] for s in r["per_seed"]]
+                        for r in rows]
+            if len({len(x) for x in per_seed}) != 1:
+                return []
+            return list(np.nanmean(np.array(per_seed, np.float64), axis=0))
         noise_type, noise_mm, breakable_metric, key = _CLAIM_METRICS[metric]
         if metric == "force" and task == "authors":
             key = "authors_mean_force_n"
