@@ -146,9 +146,9 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
     'force_contact', 'force_free'; on the shells 'success_1' and 'success_7.5' (the 0-1 and 5-7.5 mm
     shells), 'break_1' and 'break_7.5', 'break_shells' (mean over the shells); evaluated unbreakable
     'success_unbreakable_7.5'; means over the second half of training 'contact_training' (fraction of env
-    steps in contact) and 'p_force_free_training' (P(force) on free-space axes). `steps(run, threshold)`: (per-seed env steps to
-    that training success, whether any of them is a lower bound: a seed that never reached it, counted at
-    the env steps it trained). `profile(run)`: P(force) per phase (approach, contact, insertion) and axis
+    steps in contact) and 'p_force_free_training' (P(force) on free-space axes). `steps(run, threshold)`:
+    (per-seed env steps to that training success, whether any of them is a lower bound: a seed that never
+    reached it, counted at the env steps it trained). `profile(run)`: P(force) per phase (approach, contact, insertion) and axis
     (x, y, z), pooled over seeds and time, or None. A claim whose runs are missing reads 'not run'."""
     claims = []
 
@@ -158,6 +158,11 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
     def lower(text, a_run, b_run, metric, fmt=_pct):
         a, b = values(a_run, metric), values(b_run, metric)
         claims.append(Claim(text, verdict_lower(a, b), f"{fmt(a)} vs {fmt(b)}"))
+
+    def higher(text, a_run, b_run, metric):
+        """a_run's values above b_run's (printed in that order)."""
+        a, b = values(a_run, metric), values(b_run, metric)
+        claims.append(Claim(text, verdict_lower(b, a), f"{_pct(a)} vs {_pct(b)}"))
 
     def alike(text, a_run, b_run, metric_a, metric_b=None):
         a, b = values(a_run, metric_a), values(b_run, metric_b or metric_a)
@@ -183,9 +188,7 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
     variants = tuple((run, label) for run, label in LAW_VARIANTS if len(values(run, "success")))
     for other, other_label in (("pose", "Pose"), ("vices", "VICES")):
         for hybrid, label in (*hybrids, *(variants if other == "pose" else ())):
-            a, b = values(other, "success"), values(hybrid, "success")
-            claims.append(Claim(f"{label} succeeds more often than {other_label}", verdict_lower(a, b),
-                                f"{_pct(b)} vs {_pct(a)}"))
+            higher(f"{label} succeeds more often than {other_label}", hybrid, other, "success")
     breaks = _finite(values("match", "break"))
     claims.append(Claim("MATCH never breaks the peg at the training noise (paper: 0 of 500 episodes)",
                         MISSING if not len(breaks) else HOLDS if not breaks.any() else FAILS, _pct(breaks)))
@@ -233,9 +236,8 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
     # How robust are hybrid control policies to noise?
     for pose, pose_label in (("pose", "Pose"), ("pose_noise2.5", "Pose trained at 2.5 mm")):
         for hybrid, label in (("match", "MATCH"), ("hybrid", "Hybrid-Basic")):
-            a, b = values(pose, "success_7.5"), values(hybrid, "success_7.5")
-            claims.append(Claim(f"{label} degrades less with noise than {pose_label} (success at the 7.5 mm noise "
-                                "level)", verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
+            higher(f"{label} degrades less with noise than {pose_label} (success at the 7.5 mm noise level)",
+                   hybrid, pose, "success_7.5")
     for hybrid, label in hybrids:
         lower(f"{label} breaks less than Pose under noise (break %, mean over the shells; paper: less than half)",
               hybrid, "pose", "break_shells")
@@ -252,12 +254,10 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
               "significant difference)", run, run, "break_1", "break_7.5")
     # How are hybrid control policies on unconstrained tasks?
     for run, label, gain in (("match_unbreakable", "MATCH", "17.1"), ("vices_unbreakable", "VICES", "21.1")):
-        a, b = values("pose_unbreakable", "success_unbreakable_7.5"), values(run, "success_unbreakable_7.5")
-        claims.append(Claim(f"Trained unbreakable, {label} is more robust to noise than Pose (success at the 7.5 mm "
-                            f"noise level; paper: +{gain} points)", verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
-        a = values("hybrid_unbreakable", "success_unbreakable_7.5")
-        claims.append(Claim(f"Trained unbreakable, {label} is more robust to noise than Hybrid-Basic (7.5 mm; paper: "
-                            "MATCH and VICES perform best)", verdict_lower(a, b), f"{_pct(b)} vs {_pct(a)}"))
+        higher(f"Trained unbreakable, {label} is more robust to noise than Pose (success at the 7.5 mm noise level; "
+               f"paper: +{gain} points)", run, "pose_unbreakable", "success_unbreakable_7.5")
+        higher(f"Trained unbreakable, {label} is more robust to noise than Hybrid-Basic (7.5 mm; paper: MATCH and "
+               "VICES perform best)", run, "hybrid_unbreakable", "success_unbreakable_7.5")
     return claims
 
 
