@@ -148,8 +148,9 @@ def check_claims(values: Callable[[str, str], list], steps: Callable[[str, float
     'success_unbreakable_7.5'; means over the second half of training 'contact_training' (fraction of env
     steps in contact) and 'p_force_free_training' (P(force) on free-space axes). `steps(run, threshold)`:
     (per-seed env steps to that training success, whether any of them is a lower bound: a seed that never
-    reached it, counted at the env steps it trained). `profile(run)`: P(force) per phase (approach, contact, insertion) and axis
-    (x, y, z), pooled over seeds and time, or None. A claim whose runs are missing reads 'not run'."""
+    reached it, counted at the env steps it trained). `profile(run)`: P(force) per phase (approach, contact,
+    insertion) and axis (x, y, z), pooled over seeds and time, or None. A claim whose runs are missing reads
+    'not run'."""
     claims = []
 
     def newton(x):
