@@ -43,7 +43,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--break-force", type=float, default=None,
                         help="break threshold in N (default: a run's training value; 10 for baselines)")
     parser.add_argument("--unbreakable", action="store_true", help="no break threshold")
-    parser.add_argument("--batch", type=int, default=0, help="scripted baselines: episodes per jitted batch (default: all)")
+    parser.add_argument("--batch", type=int, default=0,
+                        help="scripted baselines: episodes per jitted batch (default: all)")
     parser.add_argument("--physics-backend", choices=["jax", "warp"], default=None,
                         help="evaluate a run's policies on this physics backend (default: the run's own)")
     parser.add_argument("--seed", type=int, default=0)
@@ -145,7 +146,8 @@ def render_episode(args) -> None:
 
         run, policy_params = load_policy(args.run_dir, 0, args.checkpoint, args.physics_backend)
         env = run.env
-        policy, policy_state = deterministic_policy(run.trainer), (policy_params["params"], policy_params["policy_stats"])
+        policy = deterministic_policy(run.trainer)
+        policy_state = (policy_params["params"], policy_params["policy_stats"])
         title = f"{args.run_dir} (seed index 0, {args.checkpoint} checkpoint)"
     else:
         from match_jax.evaluation import baseline_env

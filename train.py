@@ -61,19 +61,22 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0, help="base random seed")
     parser.add_argument("--total-steps", type=int, default=None, help="env steps per seed (preset default)")
     parser.add_argument("--num-envs", type=int, default=None, help="parallel envs per seed (preset default)")
-    parser.add_argument("--rollout-steps", type=int, default=None, help="env steps per env per PPO iteration (preset default)")
+    parser.add_argument("--rollout-steps", type=int, default=None,
+                        help="env steps per env per PPO iteration (preset default)")
     parser.add_argument("--epochs", type=int, default=None, help="PPO epochs per iteration (preset default)")
     parser.add_argument("--minibatches", type=int, default=None, help="minibatches per epoch (preset default)")
     parser.add_argument("--iterations-per-chunk", type=int, default=None,
                         help="PPO iterations per jitted call, between logs and checkpoints (preset default)")
-    parser.add_argument("--learning-rate", type=float, default=None, help="Adam step size (default: the preset's, 1e-3 on cpu, 3e-4 on paper and tiny)")
+    parser.add_argument("--learning-rate", type=float, default=None,
+                        help="Adam step size (default: the preset's, 1e-3 on cpu, 3e-4 on paper and tiny)")
     parser.add_argument("--learning-rate-end", type=float, default=None,
                         help="decay the step size linearly from --learning-rate to this value over the run's budget "
                              "(default: constant)")
     parser.add_argument("--desired-kl", type=float, default=None,
                         help="adapt the step size per minibatch to keep the approximate KL to the rollout policy near "
                              "this value, starting from --learning-rate (default: no adaptation)")
-    parser.add_argument("--gamma", type=float, default=None, help="discount per policy step (default: the preset's, 0.99 on cpu, 0.995 on paper and tiny)")
+    parser.add_argument("--gamma", type=float, default=None,
+                        help="discount per policy step (default: the preset's, 0.99 on cpu, 0.995 on paper and tiny)")
     parser.add_argument("--gae-lambda", type=float, default=None, help="GAE lambda (default 0.95)")
     parser.add_argument("--actor-hidden", type=int, default=None, help="actor SimBa width (preset default)")
     parser.add_argument("--actor-blocks", type=int, default=None, help="actor SimBa residual blocks (preset default)")
@@ -89,7 +92,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "commands (default: the preset's, 0 on cpu, -1 on paper and tiny)")
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
-    parser.add_argument("--break-force", type=float, default=None, help="break threshold, N (default 10; inf = unbreakable)")
+    parser.add_argument("--break-force", type=float, default=None,
+                        help="break threshold, N (default 10; inf = unbreakable)")
     parser.add_argument("--task", choices=list(TASKS), default="authors",
                         help="task protocol: 'authors' (default: the authors' task, docs/protocol.md) or 'earlier' "
                              "(this project's earlier variant: rigid peg, peg contact force, peak break, damped "
@@ -168,7 +172,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error(f"--break-force must be > 0 N, got {args.break_force}")
     if args.learning_rate is not None and not args.learning_rate > 0:
         parser.error(f"--learning-rate must be > 0, got {args.learning_rate}")
-    if args.learning_rate_end is not None and not (args.learning_rate_end >= 0 and math.isfinite(args.learning_rate_end)):
+    end = args.learning_rate_end
+    if end is not None and not (end >= 0 and math.isfinite(end)):
         parser.error(f"--learning-rate-end must be a finite number >= 0, got {args.learning_rate_end}")
     if args.desired_kl is not None:
         if not (args.desired_kl > 0 and math.isfinite(args.desired_kl)):

@@ -350,7 +350,8 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     u_radius = jax.random.uniform(jax.random.fold_in(k_noise, 1), shape[:-1])  # the same draw at every level
     shells = shell_offsets(z_gauss, u_radius, inner, jnp.asarray(levels)[None, :, None] / 1000.0)
     offsets = jnp.where(is_shell, shells, offsets)
-    mesh = batch_mesh(episodes, spec.env.physics_backend)  # episodes split over the CPU devices (one per core), if they divide evenly
+    # Episodes split over the CPU devices (one per core), if they divide evenly.
+    mesh = batch_mesh(episodes, spec.env.physics_backend)
     # One (seed, level) per call, `episodes` envs: the control law's batched LAPACK LU splits a large
     # batch over XLA's CPU thread pool, and on 2 cores a 3-seed x 6-level x 200-episode call deadlocked
     # that pool (every thread waiting in lapack_sgetrf's ParallelBatchMap).
@@ -495,7 +496,8 @@ def evaluate_baseline(name: str, episodes: int, noise_m: float, noise_type: str 
     offsets = None
     if shell:
         k_dir, k_radius = jax.random.split(jax.random.PRNGKey(seed + 7919))
-        offsets = np.asarray(shell_offsets(jax.random.normal(k_dir, (episodes, 3)), jax.random.uniform(k_radius, (episodes,)),
+        offsets = np.asarray(shell_offsets(jax.random.normal(k_dir, (episodes, 3)),
+                                           jax.random.uniform(k_radius, (episodes,)),
                                            shell_inner_mm(noise_m * 1000.0) / 1000.0, noise_m))
     per_episode = []
     for start in range(0, episodes, batch):

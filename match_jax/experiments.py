@@ -38,8 +38,8 @@ from match_jax.envs.tasks import TASKS
 from match_jax.evaluation import evaluate_run_grid
 from match_jax.report import (_table1_lines, _unbreakable_lines, early_training, episode_window,  # noqa: F401
                               learning_curves, metric_arrays, write_report)
-from match_jax.suite import (HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, SuiteRun, run_spec, suite_runs,  # noqa: F401
-                             sweep_noise_type, unbreakable)
+from match_jax.suite import (HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, SuiteRun,  # noqa: F401
+                             run_spec, suite_runs, sweep_noise_type, unbreakable)
 from match_jax.training import (ACTORS_DIR, RunError, RunSpec, actor_path, best_record, export_actors, is_exported,
                                 load_spec, read_metrics, record_path, train)
 
@@ -126,7 +126,8 @@ def evaluate_one(cfg: SuiteConfig, name: str, log=print) -> list[dict] | None:
     start = time.time()
     episodes = cfg.episodes_per_seed
     specs = [(spec.env.hole_obs_noise * 1000.0, "gaussian")] + [(x, sweep_noise_type(cfg.task)) for x in SWEEP_MM]
-    grid = evaluate_run_grid(run_dir, episodes, noise_specs=specs, break_forces=sorted({spec.env.break_force, math.inf}))
+    grid = evaluate_run_grid(run_dir, episodes, noise_specs=specs,
+                             break_forces=sorted({spec.env.break_force, math.inf}))
     for row in grid:
         row["best_iterations"] = best
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -202,7 +203,8 @@ def parse_args(argv=None) -> SuiteConfig:
                         help="task protocol of every run: the authors' (default) or this project's earlier variant")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--total-steps", type=int, default=None)
-    parser.add_argument("--episodes", type=int, default=100, help="Table 1 episodes per seed (every setting runs max(--episodes, --sweep-episodes))")
+    parser.add_argument("--episodes", type=int, default=100,
+                        help="Table 1 episodes per seed (every setting runs max(--episodes, --sweep-episodes))")
     parser.add_argument("--sweep-episodes", type=int, default=500, help="noise-sweep episodes per seed")
     parser.add_argument("--only", default=None,
                         help=f"comma-separated subset of {list(SUITE)} (default: every run of the --task; "
@@ -218,8 +220,9 @@ def parse_args(argv=None) -> SuiteConfig:
                         help="train and evaluate nothing: write the report (and --export) from the evaluations that "
                              "exist and are current, e.g. while the suite trains other runs in another process")
     parser.add_argument("--export", type=pathlib.Path, default=None,
-                        help="copy the report, its figures and, per evaluated run (as soon as it is evaluated), its "
-                             "evaluation, config, metrics and best actors (no critic or optimizer state) to this folder")
+                        help="copy the report, its figures and, per evaluated run (as soon as it is evaluated), "
+                             "its evaluation, config, metrics and best actors (no critic or optimizer state) "
+                             "to this folder")
     parser.add_argument("--learning-rate", type=float, default=None, help="Adam step size of every run (preset's)")
     parser.add_argument("--gamma", type=float, default=None, help="discount per policy step of every run (preset's)")
     parser.add_argument("--initial-force-z", type=float, default=None,

@@ -270,8 +270,10 @@ def observation_layout(env) -> list[dict]:
         "hole_yaw_cos_sin": ("1", "world z", "cos and sin of the hole block's yaw about world z"),
         "ee_lin_vel": ("m/s", "world", "linear velocity of the end-effector site"),
         "ee_ang_vel": ("rad/s", "world", "angular velocity of the hand"),
-        "ee_force": ("N", wrench_frame, f"force the robot applies to the environment (pressing down: F_z < 0), {sensor}"),
-        "ee_torque": ("N m", wrench_frame, f"torque the robot applies to the environment about the wrist site, {sensor}"),
+        "ee_force": ("N", wrench_frame,
+                     f"force the robot applies to the environment (pressing down: F_z < 0), {sensor}"),
+        "ee_torque": ("N m", wrench_frame,
+                      f"torque the robot applies to the environment about the wrist site, {sensor}"),
         "prev_action": ("action units", "action layout",
                         "the previous step's applied action, after the EMA smoothing (selections unsmoothed); "
                         "the neutral action ('action.neutral') at the episode start"),
@@ -291,7 +293,8 @@ def action_layout(space, actions) -> list[dict]:
     meaning = {
         "pos": f"position target = current end-effector position + a * {actions.pos_scale} m (world frame), "
                f"clipped to +-{actions.pos_box} m around the observed hole top",
-        "yaw": f"yaw target = current yaw + a * {actions.yaw_scale} rad about world z; roll and pitch held pointing down",
+        "yaw": f"yaw target = current yaw + a * {actions.yaw_scale} rad about world z; "
+               "roll and pitch held pointing down",
         "select_force": f"1 = force control on this world axis (the env applies force where > "
                         f"{actions.selection_threshold}), 0 = position control",
         "force_xy": f"force target = a * {actions.force_xy_max} N (world frame, robot on environment)",

@@ -42,7 +42,8 @@ class NetworkConfig:
         if not 0.0 < self.initial_p_position < 1.0:
             raise ValueError(f"NetworkConfig.initial_p_position must be in (0, 1), got {self.initial_p_position!r}")
         if not self.min_log_std < self.max_log_std:
-            raise ValueError(f"NetworkConfig needs min_log_std < max_log_std, got {self.min_log_std}, {self.max_log_std}")
+            raise ValueError(
+                f"NetworkConfig needs min_log_std < max_log_std, got {self.min_log_std}, {self.max_log_std}")
 
 
 class SimBaTrunk(nn.Module):

@@ -248,7 +248,8 @@ def _unbreakable_lines(results: dict[str, list[dict]]) -> list[str]:
 def _selection_lines(results: dict[str, list[dict]]) -> list[str]:
     """Per-axis force selection in contact and in free space of the hybrid runs."""
     lines = ["", "## Force selection (hybrid methods, training noise, deterministic policy)", "",
-              "Per axis: sum over axes i of [force selected on i and i in contact] / sum of [i in contact], pooled over "
+              "Per axis: sum over axes i of [force selected on i and i in contact] / sum of [i in contact], pooled "
+              "over "
               "steps and episodes (the paper's 84 %), with x, y, z apart. An axis is in contact when the peg's contact "
               "force along that world axis exceeds 1 N at the start of the step (the contact the action was chosen "
               "in; the selection loss's label). Free space: the same over axes not in contact. The last two columns "
@@ -258,8 +259,10 @@ def _selection_lines(results: dict[str, list[dict]]) -> list[str]:
     for name, grid in results.items():
         if name in HYBRID:
             row = _table1_row(grid)
-            xyz = {w: " / ".join(_fmt(row, f"force_selected_{w}_{a}", 100, 0) for a in "xyz") for w in ("contact", "free")}
-            lines.append(f"| {SUITE[name].label} | {_fmt(row, 'force_selected_contact_per_axis', 100)} | {xyz['contact']} "
+            xyz = {w: " / ".join(_fmt(row, f"force_selected_{w}_{a}", 100, 0) for a in "xyz")
+                   for w in ("contact", "free")}
+            lines.append(f"| {SUITE[name].label} | {_fmt(row, 'force_selected_contact_per_axis', 100)} "
+                         f"| {xyz['contact']} "
                          f"| {_fmt(row, 'force_selected_free_per_axis', 100)} | {xyz['free']} "
                          f"| {_fmt(row, 'p_force_contact', 100)} | {_fmt(row, 'p_force_free', 100)} "
                          f"| {'84 +- 10.8 / 2.9 +- 2.1' if name == 'match' else ''} |")
@@ -432,8 +435,10 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     lines += _table1_lines(results) + _noise_lines(results) + _unbreakable_lines(results) + _selection_lines(results)
     # Learning-speed claims compare finished runs only: a run still training has not had its budget.
     finished = {n: c for n, c in curves.items() if n in results}
-    lines += _learning_lines(curves, results) + _early_lines(curves, results) + _claims_lines(results, finished, cfg.task)
-    lines += ["", "## Figures", "", "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
+    lines += _learning_lines(curves, results) + _early_lines(curves, results)
+    lines += _claims_lines(results, finished, cfg.task)
+    lines += ["", "## Figures", "",
+              "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
               "- `noise_robustness.png`: success (top) and break rate (bottom) vs the noise sweep's level, breakable "
               "peg; mean and 95 % interval over seeds",
               "- `unbreakable_robustness.png`: success vs the noise sweep's level, unbreakable peg (runs trained "

@@ -211,8 +211,9 @@ def _selection_cell(summary: dict, sim_row: dict | None) -> str:
         return "-" if x is None or math.isnan(x) else f"{100 * x:.1f} %"
 
     counts = summary.get("selection")
-    ours = "-" if counts is None else (f"{pct(counts['force_selected_contact_per_axis'])} ("
-                                       f"{counts['force_selected_contact_axis_steps']} / {counts['contact_axis_steps']})")
+    ours = "-" if counts is None else (
+        f"{pct(counts['force_selected_contact_per_axis'])} "
+        f"({counts['force_selected_contact_axis_steps']} / {counts['contact_axis_steps']})")
     sim = "-" if sim_row is None else pct(sim_row.get("force_selected_contact_per_axis"))
     return f"{ours} / {sim}"
 

@@ -40,7 +40,8 @@ class ActionConfig:
             raise ValueError(f"ActionConfig.ema must be in (0, 1], got {self.ema!r}")
         lo, hi = self.force_z_range
         if not lo < hi:
-            raise ValueError(f"ActionConfig.force_z_range must be (low, high) with low < high, got {self.force_z_range!r}")
+            raise ValueError(
+                f"ActionConfig.force_z_range must be (low, high) with low < high, got {self.force_z_range!r}")
         lo, hi = self.stiffness_range
         if not 0 <= lo < hi:
             raise ValueError(f"ActionConfig.stiffness_range must be 0 <= low < high, got {self.stiffness_range!r}")

@@ -63,7 +63,8 @@ def check_state(state, where: str, batched: bool = True) -> None:
         raise ValueError(f"{where} state lacks obs keys {missing_obs} / info keys {missing_info}")
     shape = state.info["contact_axes"].shape
     if (shape[-1:] if batched else shape) != (3,):
-        raise ValueError(f"{where}: info['contact_axes'] has shape {shape}, expected {'(..., 3)' if batched else '(3,)'}")
+        expected = "(..., 3)" if batched else "(3,)"
+        raise ValueError(f"{where}: info['contact_axes'] has shape {shape}, expected {expected}")
 
 
 def check_env(env) -> None:
