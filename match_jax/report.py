@@ -249,11 +249,10 @@ def _selection_lines(results: dict[str, list[dict]]) -> list[str]:
     """Per-axis force selection in contact and in free space of the hybrid runs."""
     lines = ["", "## Force selection (hybrid methods, training noise, deterministic policy)", "",
               "Per axis: sum over axes i of [force selected on i and i in contact] / sum of [i in contact], pooled "
-              "over "
-              "steps and episodes (the paper's 84 %), with x, y, z apart. An axis is in contact when the peg's contact "
-              "force along that world axis exceeds 1 N at the start of the step (the contact the action was chosen "
-              "in; the selection loss's label). Free space: the same over axes not in contact. The last two columns "
-              "are the older summary: P(force), mean over the 3 axes, on steps with / without any contact.", "",
+              "over steps and episodes (the paper's 84 %), with x, y, z apart. An axis is in contact when the peg's "
+              "contact force along that world axis exceeds 1 N at the start of the step (the contact the action was "
+              "chosen in; the selection loss's label). Free space: the same over axes not in contact. The last two "
+              "columns are the older summary: P(force), mean over the 3 axes, on steps with / without any contact.", "",
               "| method | per axis, in contact % | x / y / z in contact % | per axis, free % | x / y / z free % "
               "| P(force) contact % | P(force) free % | paper (MATCH) |", "|---|---|---|---|---|---|---|---|"]
     for name, grid in results.items():
