@@ -50,6 +50,13 @@ def _fmt(row: dict, key: str, scale: float = 1.0, digits: int = 1) -> str:
     return f"{scale * mean:.{digits}f}" + ("" if math.isnan(half) else f" +- {scale * half:.{digits}f}")
 
 
+def _time_force_cells(row: dict) -> list[str]:
+    """Time to success (s) and mean contact force (N) of an evaluation row, each as ours / the authors'."""
+    return [f"{_fmt(row, ours, 1, 2)} / {_fmt(row, authors, 1, 2)}"
+            for ours, authors in (("mean_time_to_success_s", "authors_time_to_success_s"),
+                                  ("mean_force_n", "authors_mean_force_n"))]
+
+
 def _row(grid: list[dict], noise_type: str, noise_mm: float | None, breakable: bool) -> dict | None:
     for r in grid:
         if r["noise_type"] == noise_type and (noise_mm is None or r["noise_mm"] == noise_mm) \
@@ -200,8 +207,7 @@ def _table1_lines(results: dict[str, list[dict]]) -> list[str]:
         paper = PAPER_TABLE1.get(name, ("-",) * 4)
         lines.append(f"| {SUITE[name].label} | {_fmt(row, 'success_rate', 100)} | {_fmt(row, 'break_rate', 100)} | "
                      f"{_fmt(row, 'break_rate_peak', 100)} / {_fmt(row, 'break_rate_policy_step', 100)} | "
-                     f"{_fmt(row, 'mean_time_to_success_s', 1, 2)} / {_fmt(row, 'authors_time_to_success_s', 1, 2)} | "
-                     f"{_fmt(row, 'mean_force_n', 1, 2)} / {_fmt(row, 'authors_mean_force_n', 1, 2)} | "
+                     + " | ".join(_time_force_cells(row)) + " | "
                      + " | ".join(str(x) for x in paper) + " |")
     return lines
 
@@ -240,10 +246,7 @@ def _unbreakable_lines(results: dict[str, list[dict]]) -> list[str]:
                      if r is not None]
             at_training = _row(grid, "gaussian", None, False)
             if at_training is not None:
-                cells += [_fmt(at_training, "success_rate", 100)] + [
-                    f"{_fmt(at_training, ours, 1, 2)} / {_fmt(at_training, authors, 1, 2)}"
-                    for ours, authors in (("mean_time_to_success_s", "authors_time_to_success_s"),
-                                          ("mean_force_n", "authors_mean_force_n"))]
+                cells += [_fmt(at_training, "success_rate", 100)] + _time_force_cells(at_training)
             trained = "unbreakable" if unbreakable(name) else f"{SUITE[name].break_force:g} N"
             lines.append(f"| {SUITE[name].label} | {trained} | " + " | ".join(cells) + " |")
     return lines
