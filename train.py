@@ -56,7 +56,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="experimental: average the SSL over in-contact steps only (no SSL pull in free space)")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
                         help="MATCH: leave the Bernoulli term out of the PPO ratio (authors' public code)")
-    parser.add_argument("--preset", choices=["cpu", "paper", "tiny"], default="cpu")
+    parser.add_argument("--preset", choices=["cpu", "authors", "paper", "tiny"], default="cpu",
+                        help="sizes and learning settings (default cpu; authors: the authors' code's recipe, for GPUs)")
     parser.add_argument("--seeds", type=int, default=1, help="seeds trained together (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="base random seed")
     parser.add_argument("--total-steps", type=int, default=None, help="env steps per seed (preset default)")
@@ -90,6 +91,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--initial-force-z", type=float, default=None,
                         help="hybrid methods: the force-z target (N, < 0 presses down) the untrained policy's mean "
                              "commands (default: the preset's, 0 on cpu, -1 on paper and tiny)")
+    parser.add_argument("--set", nargs="+", action="extend", default=[], metavar="FIELD=VALUE",
+                        help="set any learning setting of the preset by name, after the flags above: a PPOConfig "
+                             "field (critic_steps=2, value_loss=huber, kl_threshold=0.05, ...) or network.FIELD "
+                             "(network.head_scale=0.14); docs/training.md lists them")
     parser.add_argument("--hole-noise-mm", type=float, default=None,
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None,
@@ -201,15 +206,18 @@ def parse_args(argv=None) -> argparse.Namespace:
                          f"got {args.initial_force_z}")
     if args.ssl_coef is not None and not args.ssl_coef >= 0:
         parser.error(f"--ssl-coef must be >= 0, got {args.ssl_coef}")
+    if args.set and args.method is not None:  # every assignment parses and the config accepts it, before any work
+        try:
+            _learner(args)
+        except ValueError as err:
+            parser.error(str(err))
     return args
 
 
-def build_spec(args: argparse.Namespace):
-    from match_jax.envs import FPiHConfig
+def _learner(args: argparse.Namespace):
+    """The PPOConfig the flags ask for: the preset, the flags that replace its fields, then --set."""
+    from match_jax.overrides import apply_overrides
     from match_jax.presets import get_preset
-    from match_jax.envs.tasks import task_config
-    from match_jax.randomization import DYNAMICS_PRESETS, ModelRandomization
-    from match_jax.training import RunSpec
 
     overrides = {"method": args.method}
     for name in ("total_steps", "num_envs", "learning_rate", "learning_rate_end", "desired_kl", "gamma", "gae_lambda",
@@ -230,6 +238,16 @@ def build_spec(args: argparse.Namespace):
     network = {name: getattr(args, name) for name in NETWORK_FIELDS if getattr(args, name) is not None}
     if network:
         ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, **network))
+    return apply_overrides(ppo, args.set)
+
+
+def build_spec(args: argparse.Namespace):
+    from match_jax.envs import FPiHConfig
+    from match_jax.envs.tasks import task_config
+    from match_jax.randomization import DYNAMICS_PRESETS, ModelRandomization
+    from match_jax.training import RunSpec
+
+    ppo = _learner(args)
     env = FPiHConfig(control=ppo.control)
     if args.hole_noise_mm is not None:
         env = dataclasses.replace(env, hole_obs_noise=args.hole_noise_mm / 1000.0)

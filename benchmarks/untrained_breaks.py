@@ -43,15 +43,26 @@ SETTINGS = {
     "MATCH, initial force-z -0.5 N": dict(method="match", initial_force_z=-0.5),
     "MATCH, initial force-z -10 N (mean action 0)": dict(method="match", initial_force_z=None),
 }
+# The force-z start on the authors' task (`--task authors --only ...`): responsive targets, and the authors'
+# initial pre-tanh std 1.0.
+SETTINGS.update({
+    "MATCH, initial force-z -1 N": dict(method="match", initial_force_z=-1.0),
+    "MATCH, initial force-z -2 N": dict(method="match", initial_force_z=-2.0),
+    "MATCH, initial force-z -5 N": dict(method="match", initial_force_z=-5.0),
+    "MATCH, initial force-z -2 N, std 1.0": dict(method="match", initial_force_z=-2.0, initial_log_std=0.0),
+    "MATCH, initial force-z -10 N, std 1.0": dict(method="match", initial_force_z=None, initial_log_std=0.0),
+    "Pose, std 1.0": dict(method="pose", initial_log_std=0.0),
+})
 
 
-def untrained_episodes(method: str, episodes: int, force_law: str = "damped", **network) -> dict:
+def untrained_episodes(method: str, episodes: int, force_law: str | None = None, task: str = "earlier",
+                       **network) -> dict:
     """Break and contact statistics of one setting's untrained, stochastic policy (see the module docstring);
     `network` replaces fields of the preset's NetworkConfig (e.g. initial_p_position=0.99)."""
     ppo = get_preset("cpu", method=method)
-    network = {"initial_force_z": EARLIER_FORCE_Z, **network}
+    network = {"initial_force_z": EARLIER_FORCE_Z if task == "earlier" else ppo.network.initial_force_z, **network}
     ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, **network))
-    env = make_env(ppo, task_config("earlier", ppo.control, force_law))
+    env = make_env(ppo, task_config(task, ppo.control, force_law))
     trainer = make_trainer(ppo, env)
     state = jax.jit(trainer.init)(jax.random.split(jax.random.PRNGKey(0), 1))
     params, stats = jax.tree_util.tree_map(lambda x: x[0], (state.params, state.policy_stats))
@@ -84,6 +95,8 @@ def main(argv=None) -> int:
     parser.add_argument("--json", type=pathlib.Path, default=None, help="also write the numbers here")
     parser.add_argument("--only", nargs="+", metavar="SETTING", choices=list(SETTINGS), default=list(SETTINGS),
                         help="run only these settings (default: all)")
+    parser.add_argument("--task", choices=["earlier", "authors"], default="earlier",
+                        help="task protocol (default: earlier, what the committed table was measured on)")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be a positive integer, got {args.episodes}")
@@ -92,13 +105,13 @@ def main(argv=None) -> int:
           "| mean step of first contact | mean step of the break | breaks on the first contact step % |")
     print("|---|---|---|---|---|---|---|")
     for label in args.only:
-        r = rows[label] = untrained_episodes(episodes=args.episodes, **SETTINGS[label])
+        r = rows[label] = untrained_episodes(episodes=args.episodes, task=args.task, **SETTINGS[label])
         print(f"| {label} | {100 * r['breaks']:.0f} | {100 * r['contact_episodes']:.0f} | {100 * r['force_selected']:.1f} "
               f"| {r['first_contact_step']:.0f} | {r['break_step']:.0f} | {100 * r['breaks_at_first_contact']:.0f} |",
               flush=True)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"episodes": args.episodes, "settings": rows}, indent=1) + "\n")
+        args.json.write_text(json.dumps({"episodes": args.episodes, "task": args.task, "settings": rows}, indent=1) + "\n")
     return 0
 
 

@@ -65,11 +65,32 @@ def selection_rates(counts: SelectionCounts, axes: int = 3) -> dict[str, jax.Arr
             "p_force_free_axis": ratio(axes * c.p_sum - c.p_axis_contact_sum, axis_free)}
 
 
-def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config, ssl_beta=None):
+HUBER_MAD_SCALE = 1.35  # the adaptive Huber delta in units of the median absolute deviation
+
+
+def value_loss(predicted: jax.Array, returns: jax.Array, old_values: jax.Array | None = None,
+               kind: str = "mse") -> jax.Array:
+    """The critic's loss on a batch, mean over samples, in the critic's output units.
+
+    'mse': 0.5 (V - R)^2. 'huber': Huber(V - R) with delta = 1.35 x (the median absolute deviation of
+    old_values - V, plus 1e-8), held constant for the gradient: old_values are the rollout's values, so
+    delta tracks how far the critic has moved since the rollout (the authors' adaptive delta).
+    """
+    if kind == "mse":
+        return 0.5 * jnp.mean((predicted - returns) ** 2)
+    if kind != "huber":
+        raise ValueError(f"value loss must be 'mse' or 'huber', got {kind!r}")
+    change = jax.lax.stop_gradient(old_values - predicted)
+    mad = jnp.median(jnp.abs(change - jnp.median(change))) + 1e-8
+    return jnp.mean(optax.huber_loss(predicted, returns, delta=HUBER_MAD_SCALE * mad))
+
+
+def ppo_loss(params, batch, adv, returns, old_values=None, *, actor, critic, dist, config, ssl_beta=None):
     """PPO's clipped surrogate + value loss (+ beta x selection loss for hybrid policies, 'joint' phase).
 
     params: {'actor', 'critic'}; batch: a `ppo.Transition` minibatch (normalised observations, the
-    rollout's latent samples and their log-probs, contact labels); adv, returns: (N,) from GAE.
+    rollout's latent samples and their log-probs, contact labels); adv, returns: (N,) from GAE, returns
+    in the critic's units; old_values: (N,) the rollout's values in those units (the Huber loss's delta).
     actor / critic: the Flax modules; dist: the method's action distribution; config: `PPOConfig`;
     ssl_beta: the selection loss's weight, a value or a traced scalar (None: config.ssl_beta).
     Returns (total loss, (metrics, SelectionCounts of the batch, or None for policies without selection)).
@@ -82,9 +103,9 @@ def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config, ssl_be
         adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     pg_loss = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - config.clip_eps, 1 + config.clip_eps) * adv).mean()
     values = critic.apply(params["critic"], batch.critic_obs)
-    value_loss = 0.5 * jnp.mean((values - returns) ** 2)
+    critic_loss = value_loss(values, returns, old_values, config.value_loss)
     entropy = dist.entropy(head).mean()
-    total = pg_loss + config.value_coef * value_loss - config.entropy_coef * entropy
+    total = pg_loss + config.value_coef * critic_loss - config.entropy_coef * entropy
     ssl_loss = jnp.zeros(())
     counts = None
     if dist.num_selections:
@@ -95,7 +116,7 @@ def ppo_loss(params, batch, adv, returns, *, actor, critic, dist, config, ssl_be
     metrics = {
         "loss": total,
         "policy_loss": pg_loss,
-        "value_loss": value_loss,
+        "value_loss": critic_loss,
         "entropy": entropy,
         "ssl_loss": ssl_loss,
         "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),

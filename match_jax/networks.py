@@ -33,6 +33,11 @@ class NetworkConfig:
     initial_p_position: float = INITIAL_P_POSITION
     min_log_std: float = -5.0
     max_log_std: float = 1.0
+    # orthogonal-init gain of the actor's last layers (means, selection logits); the authors' He-normal
+    # init scaled by 0.1 has the same weight scale as a gain of 0.1 x sqrt(2)
+    head_scale: float = 0.01
+    # the untrained critic's output (its last layer's bias), in the critic's output units
+    critic_init_value: float = 0.0
 
     def __post_init__(self):
         for name in ("actor_hidden", "actor_blocks", "critic_hidden", "critic_blocks"):
@@ -41,6 +46,10 @@ class NetworkConfig:
                 raise ValueError(f"NetworkConfig.{name} must be a positive integer, got {value!r}")
         if not 0.0 < self.initial_p_position < 1.0:
             raise ValueError(f"NetworkConfig.initial_p_position must be in (0, 1), got {self.initial_p_position!r}")
+        if not 0.0 < self.head_scale < float("inf"):
+            raise ValueError(f"NetworkConfig.head_scale must be a finite number > 0, got {self.head_scale!r}")
+        if not abs(self.critic_init_value) < float("inf"):
+            raise ValueError(f"NetworkConfig.critic_init_value must be finite, got {self.critic_init_value!r}")
         if not self.min_log_std < self.max_log_std:
             raise ValueError(
                 f"NetworkConfig needs min_log_std < max_log_std, got {self.min_log_std}, {self.max_log_std}")
@@ -78,12 +87,12 @@ class Actor(nn.Module):
         cfg = self.config
         x = SimBaTrunk(cfg.actor_hidden, cfg.actor_blocks)(obs)
         bias = jnp.asarray(self.mean_bias if self.mean_bias else (0.0,) * self.num_continuous, jnp.float32)
-        mean = nn.Dense(self.num_continuous, kernel_init=nn.initializers.orthogonal(0.01),
+        mean = nn.Dense(self.num_continuous, kernel_init=nn.initializers.orthogonal(cfg.head_scale),
                         bias_init=lambda *_: bias)(x)
         log_std = self.param("log_std", nn.initializers.constant(cfg.initial_log_std), (self.num_continuous,))
         log_std = jnp.clip(log_std, cfg.min_log_std, cfg.max_log_std)
         if self.num_selections:
-            logits = nn.Dense(self.num_selections, kernel_init=nn.initializers.orthogonal(0.01),
+            logits = nn.Dense(self.num_selections, kernel_init=nn.initializers.orthogonal(cfg.head_scale),
                               bias_init=nn.initializers.constant(selection_bias(cfg.initial_p_position)))(x)
         else:  # pose / VICES: no selection head (a zero-width Dense breaks some jax versions' initialisers)
             logits = jnp.zeros(x.shape[:-1] + (0,), x.dtype)
@@ -98,4 +107,5 @@ class Critic(nn.Module):
     @nn.compact
     def __call__(self, obs: jax.Array) -> jax.Array:
         x = SimBaTrunk(self.config.critic_hidden, self.config.critic_blocks)(obs)
-        return nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0))(x)[..., 0]
+        return nn.Dense(1, kernel_init=nn.initializers.orthogonal(1.0),
+                        bias_init=nn.initializers.constant(self.config.critic_init_value))(x)[..., 0]

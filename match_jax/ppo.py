@@ -34,7 +34,7 @@ from brax.training.acme import running_statistics
 from brax.training.acme import specs
 
 from match_jax.distributions import METHODS, METHOD_CONTROL, ProductDistribution, Sample, make_distribution
-from match_jax.losses import ppo_loss, selection_loss, selection_rates
+from match_jax.losses import ppo_loss, selection_loss, selection_rates, value_loss
 from match_jax import sim
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv, contract
 from match_jax.networks import Actor, Critic, NetworkConfig
@@ -79,6 +79,9 @@ class PPOConfig:
     adam_b1: float = 0.9
     adam_b2: float = 0.999
     adam_eps: float = 1e-5
+    # Adam step sizes of the actor and the critic (None: learning_rate); the same schedule scales both
+    actor_learning_rate: float | None = None
+    critic_learning_rate: float | None = None
     max_grad_norm: float = 0.5  # per network (actor and critic are clipped separately)
     gamma: float = 0.995
     gae_lambda: float = 0.95
@@ -87,6 +90,18 @@ class PPOConfig:
     entropy_coef: float = 0.0
     reward_scale: float = 0.25
     normalize_advantages: bool = True
+    # critic Adam steps per minibatch: the joint actor-critic step, then critic_steps - 1 value-loss-only
+    # steps on the same minibatch (the authors' value_update_ratio)
+    critic_steps: int = 1
+    # None: off; else per seed, once a minibatch's approximate KL to the rollout policy (before its step)
+    # exceeds this, the actor takes no further step in this update; the critic goes on
+    kl_threshold: float | None = None
+    # 'mse': 0.5 (V - R)^2; 'huber': Huber loss with delta = 1.35 x the median absolute deviation of the
+    # critic's change since the rollout (the authors' adaptive delta)
+    value_loss: str = "mse"
+    # the critic predicts returns normalised by their running mean and std (per seed); GAE reads its values
+    # back in return units
+    normalize_returns: bool = False
     network: NetworkConfig = NetworkConfig()
 
     def __post_init__(self):
@@ -96,7 +111,10 @@ class PPOConfig:
             raise ValueError(f"ssl_phase must be 'joint' or 'after', got {self.ssl_phase!r}")
         if self.ssl_samples not in ("all", "contact"):
             raise ValueError(f"ssl_samples must be 'all' or 'contact', got {self.ssl_samples!r}")
-        for name in ("num_envs", "rollout_steps", "total_steps", "iterations_per_chunk", "epochs", "minibatches"):
+        if self.value_loss not in ("mse", "huber"):
+            raise ValueError(f"value_loss must be 'mse' or 'huber', got {self.value_loss!r}")
+        for name in ("num_envs", "rollout_steps", "total_steps", "iterations_per_chunk", "epochs", "minibatches",
+                     "critic_steps"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -117,9 +135,27 @@ class PPOConfig:
             if self.learning_rate_end is not None:
                 raise ValueError(f"desired_kl ({self.desired_kl!r}) and learning_rate_end ({self.learning_rate_end!r}) "
                                  "are two step-size schedules; choose one")
+        for name in ("actor_learning_rate", "critic_learning_rate"):
+            if getattr(self, name) is not None and not 0 < getattr(self, name) < float("inf"):
+                raise ValueError(f"{name} must be a finite number > 0 or None, got {getattr(self, name)!r}")
+        if self.desired_kl is not None and self.actor_lr != self.critic_lr:
+            raise ValueError(f"desired_kl ({self.desired_kl!r}) sets one step size for both networks; it cannot "
+                             f"start from two (actor {self.actor_lr!r}, critic {self.critic_lr!r})")
+        if self.kl_threshold is not None and not 0 < self.kl_threshold < float("inf"):
+            raise ValueError(f"kl_threshold must be a finite number > 0 or None, got {self.kl_threshold!r}")
         for name in ("ssl_coef", "value_coef", "entropy_coef"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+
+    @property
+    def actor_lr(self) -> float:
+        """The actor's base Adam step size."""
+        return self.learning_rate if self.actor_learning_rate is None else self.actor_learning_rate
+
+    @property
+    def critic_lr(self) -> float:
+        """The critic's base Adam step size."""
+        return self.learning_rate if self.critic_learning_rate is None else self.critic_learning_rate
 
     @property
     def control(self) -> str:
@@ -179,6 +215,9 @@ class TrainState(NamedTuple):
     key: jax.Array
     iteration: jax.Array
     env_steps: jax.Array
+    # running statistics of the returns (PPOConfig.normalize_returns; None otherwise, so a run without them
+    # has the checkpoint layout it always had)
+    return_stats: Any = None
 
 
 class Trainer(NamedTuple):
@@ -268,12 +307,14 @@ class Learner(NamedTuple):
     ssl_beta: Any  # the selection loss's weight (a traced scalar when given as a RuntimeValues)
 
 
-def learning_rate_schedule(config: PPOConfig) -> float | optax.Schedule:
-    """Adam's step size: the constant learning_rate, or a linear decay to learning_rate_end over the
-    run's budget of optimizer updates (held at learning_rate_end after it)."""
+def learning_rate_schedule(config: PPOConfig, network: str = "actor") -> float | optax.Schedule:
+    """Adam's step size for `network` ('actor' | 'critic'): its constant base step size, or a linear decay
+    from it to base x learning_rate_end / learning_rate over the run's budget of optimizer updates (held
+    there after it)."""
+    base = config.actor_lr if network == "actor" else config.critic_lr
     if config.learning_rate_end is None:
-        return config.learning_rate
-    return optax.linear_schedule(config.learning_rate, config.learning_rate_end,
+        return base
+    return optax.linear_schedule(base, base * config.learning_rate_end / config.learning_rate,
                                  config.num_iterations * config.optimizer_steps_per_iteration)
 
 
@@ -299,12 +340,31 @@ def optimizer_learning_rate(opt_state) -> jax.Array:
 def make_optimizer(config: PPOConfig) -> optax.GradientTransformation:
     """Adam with global-norm clipping, one per network (actor and critic clipped separately). With desired_kl
     the step size is a hyperparameter in the optimizer state (`optax.inject_hyperparams`), set per minibatch."""
-    def one():
+    def one(network):
         adam = optax.inject_hyperparams(optax.adam) if config.desired_kl is not None else optax.adam
         return optax.chain(optax.clip_by_global_norm(config.max_grad_norm),
-                           adam(learning_rate_schedule(config), b1=config.adam_b1, b2=config.adam_b2,
+                           adam(learning_rate_schedule(config, network), b1=config.adam_b1, b2=config.adam_b2,
                                 eps=config.adam_eps))
-    return optax.multi_transform({"actor": one(), "critic": one()}, {"actor": "actor", "critic": "critic"})
+    return optax.multi_transform({"actor": one("actor"), "critic": one("critic")},
+                                 {"actor": "actor", "critic": "critic"})
+
+
+def apply_gradients(optimizer: optax.GradientTransformation, params: dict, opt_state, grads: dict,
+                    actor_on: Any = True, critic_on: Any = True) -> tuple[dict, Any]:
+    """One Adam step of `make_optimizer`'s optimizer, applied to the networks whose flag (a bool or a
+    traced boolean) is on: a network that is off keeps its parameters and its Adam state unchanged."""
+    updates, new_state = optimizer.update(grads, opt_state, params)
+    new_params = optax.apply_updates(params, updates)
+    if actor_on is True and critic_on is True:
+        return new_params, new_state
+
+    def keep(on, new, old):
+        return jax.tree_util.tree_map(lambda n, o: jnp.where(on, n, o), new, old)
+
+    flags = {"actor": actor_on, "critic": critic_on}
+    params = {k: keep(flags[k], new_params[k], params[k]) for k in params}
+    inner = {k: keep(flags[k], new_state.inner_states[k], opt_state.inner_states[k]) for k in flags}
+    return params, new_state._replace(inner_states=inner)
 
 
 def normalize(x: jax.Array, stats: running_statistics.RunningStatisticsState) -> jax.Array:
@@ -379,6 +439,7 @@ def init_seed(learner: Learner, key: jax.Array) -> TrainState:
         key=key,
         iteration=jnp.zeros((), jnp.int32),
         env_steps=jnp.zeros((), jnp.int32),
+        return_stats=initial_stats(1) if config.normalize_returns else None,
     )
 
 
@@ -465,24 +526,53 @@ def rollout(learner: Learner, ts: TrainState, keys: jax.Array) -> Rollout:
     )
 
 
-def advantages(learner: Learner, params: dict, traj: Transition, last_critic_obs: jax.Array):
-    """GAE (advantages, returns), each (T, envs), of one seed's rollout under its critic."""
+def to_return_units(value: jax.Array, return_stats) -> jax.Array:
+    """A critic output in return units (return_stats None: the critic predicts returns directly)."""
+    return value if return_stats is None else value * return_stats.std[0] + return_stats.mean[0]
+
+
+def to_critic_units(returns: jax.Array, return_stats) -> jax.Array:
+    """Returns in the critic's output units: normalised by the running statistics, or as they are."""
+    return returns if return_stats is None else (returns - return_stats.mean[0]) / return_stats.std[0]
+
+
+class Targets(NamedTuple):
+    """What the update fits, each (T, envs), of one seed's rollout."""
+
+    advantages: jax.Array
+    returns: jax.Array  # in the critic's units
+    old_values: jax.Array  # the rollout's values, in the critic's units
+    return_stats: Any  # updated with this rollout's returns (None without return normalisation)
+
+
+def advantages(learner: Learner, params: dict, traj: Transition, last_critic_obs: jax.Array,
+               return_stats=None) -> Targets:
+    """GAE of one seed's rollout under its critic, and the critic's targets. With return normalisation the
+    critic's values are read in return units for GAE, the statistics are updated with the rollout's returns,
+    and returns and values are normalised with the updated statistics."""
     config, critic = learner.config, learner.critic
-    values = critic.apply(params["critic"], traj.critic_obs)
-    final_values = critic.apply(params["critic"], traj.final_critic_obs)
-    last_value = critic.apply(params["critic"], last_critic_obs)
-    return generalized_advantages(traj.reward, values, final_values, last_value, traj.done, traj.truncation,
-                                  config.gamma, config.gae_lambda)
+
+    def value(obs):
+        return to_return_units(critic.apply(params["critic"], obs), return_stats)
+
+    values = value(traj.critic_obs)
+    adv, returns = generalized_advantages(traj.reward, values, value(traj.final_critic_obs), value(last_critic_obs),
+                                          traj.done, traj.truncation, config.gamma, config.gae_lambda)
+    if return_stats is not None:
+        return_stats = running_statistics.update(return_stats, returns.reshape(-1, 1))
+    return Targets(adv, to_critic_units(returns, return_stats), to_critic_units(values, return_stats), return_stats)
 
 
-def update(learner: Learner, params: dict, opt_state, traj: Transition, adv: jax.Array, returns: jax.Array,
-           key: jax.Array):
-    """`epochs` x `minibatches` steps on `ppo_loss` over one seed's rollout (then, with ssl_phase 'after',
-    an epoch of SSL-only steps). Returns (params, opt_state, metrics: the loss metrics' means and the
-    p_force rates of `losses.selection_rates`, NaN for policies without selection)."""
+def update(learner: Learner, params: dict, opt_state, traj: Transition, targets: Targets, key: jax.Array):
+    """`epochs` x `minibatches` steps on `ppo_loss` over one seed's rollout, each followed by
+    critic_steps - 1 value-only steps and, with kl_threshold, none for the actor once a minibatch's KL
+    exceeded it (then, with ssl_phase 'after', an epoch of SSL-only steps). Returns (params, opt_state,
+    metrics: the loss metrics' means, the fraction of minibatches the actor stepped on ('actor_steps') and
+    the p_force rates of `losses.selection_rates`, NaN for policies without selection)."""
     config, optimizer = learner.config, learner.optimizer
     n = config.steps_per_iteration
-    flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[2:]), (traj, adv, returns))
+    flat = jax.tree_util.tree_map(lambda x: x.reshape((n,) + x.shape[2:]),
+                                  (traj, targets.advantages, targets.returns, targets.old_values))
     loss_fn = functools.partial(ppo_loss, actor=learner.actor, critic=learner.critic, dist=learner.dist,
                                 config=config, ssl_beta=learner.ssl_beta)
 
@@ -492,25 +582,35 @@ def update(learner: Learner, params: dict, opt_state, traj: Transition, adv: jax
         return jax.tree_util.tree_map(
             lambda x: x[perm].reshape((config.minibatches, n // config.minibatches) + x.shape[1:]), tree)
 
-    def apply_grads(params, opt_state, grads):
-        updates, opt_state = optimizer.update(grads, opt_state, params)
-        return optax.apply_updates(params, updates), opt_state
+    def apply_grads(params, opt_state, grads, actor_on=True):
+        return apply_gradients(optimizer, params, opt_state, grads, actor_on=actor_on)
+
+    def critic_loss(params, batch, adv, returns, old_values):
+        values = learner.critic.apply(params["critic"], batch.critic_obs)
+        return config.value_coef * value_loss(values, returns, old_values, config.value_loss)
 
     def minibatch(carry, mb):
-        params, opt_state = carry
+        params, opt_state, actor_on = carry
         grads, aux = jax.grad(loss_fn, has_aux=True)(params, *mb)
+        if config.kl_threshold is not None:  # the KL at the pre-step params; once above, the actor stops
+            actor_on = actor_on & (aux[0]["approx_kl"] <= config.kl_threshold)
         if config.desired_kl is not None:  # this step's size from its KL (the loss's, at the pre-step params)
             step_size = kl_adapted_learning_rate(optimizer_learning_rate(opt_state), aux[0]["approx_kl"],
                                                  config.desired_kl)
             opt_state = optax.tree_utils.tree_set(opt_state, learning_rate=step_size)
             aux = ({**aux[0], "learning_rate": step_size}, aux[1])
-        return apply_grads(params, opt_state, grads), aux
+        params, opt_state = apply_grads(params, opt_state, grads,
+                                        actor_on if config.kl_threshold is not None else True)
+        for _ in range(config.critic_steps - 1):
+            params, opt_state = apply_grads(params, opt_state, jax.grad(critic_loss)(params, *mb), actor_on=False)
+        aux = ({**aux[0], "actor_steps": actor_on.astype(jnp.float32)}, aux[1])
+        return (params, opt_state, actor_on), aux
 
     def epoch(carry, epoch_key):
         return jax.lax.scan(minibatch, carry, shuffled_minibatches(epoch_key, flat))
 
-    (params, opt_state), (metrics, counts) = jax.lax.scan(epoch, (params, opt_state),
-                                                          jax.random.split(key, config.epochs))
+    (params, opt_state, _), (metrics, counts) = jax.lax.scan(epoch, (params, opt_state, jnp.asarray(True)),
+                                                             jax.random.split(key, config.epochs))
     if config.uses_ssl and config.ssl_phase == "after":
         def ssl_step(carry, mb):  # SSL-only steps, after PPO has finished with this rollout
             (params, opt_state), (obs, labels) = carry, mb
@@ -536,9 +636,10 @@ def iteration(learner: Learner, ts: TrainState) -> tuple[TrainState, dict]:
     config = learner.config
     keys = jax.vmap(lambda k: jax.random.split(k, 3))(ts.key)
     out = rollout(learner, ts, keys[:, 1])
-    adv, returns = jax.vmap(functools.partial(advantages, learner))(ts.params, out.traj, out.last_critic_obs)
+    targets = jax.vmap(functools.partial(advantages, learner))(ts.params, out.traj, out.last_critic_obs,
+                                                               ts.return_stats)
     params, opt_state, metrics = jax.vmap(functools.partial(update, learner))(
-        ts.params, ts.opt_state, out.traj, adv, returns, keys[:, 2])
+        ts.params, ts.opt_state, out.traj, targets, keys[:, 2])
     counts, episodes = out.counts, out.counts["episodes"]
     metrics.update(
         episodes=episodes,
@@ -549,13 +650,13 @@ def iteration(learner: Learner, ts: TrainState) -> tuple[TrainState, dict]:
         action_std=jnp.exp(params["actor"]["params"]["log_std"]).mean(-1),
     )
     if config.desired_kl is None:  # this iteration's first Adam step size (KL-adaptive: the mean of its PPO steps')
-        step_size = learning_rate_schedule(config)
+        step_size = learning_rate_schedule(config, "actor")
         metrics["learning_rate"] = (step_size(ts.iteration * config.optimizer_steps_per_iteration)
                                     if callable(step_size) else jnp.full(ts.iteration.shape, step_size))
     env_steps = ts.env_steps + config.steps_per_iteration
     metrics.update(iteration=ts.iteration + 1, env_steps=env_steps)
     ts = TrainState(params, opt_state, out.policy_stats, out.critic_stats, out.env_state, out.episode_success,
-                    keys[:, 0], ts.iteration + 1, env_steps)
+                    keys[:, 0], ts.iteration + 1, env_steps, targets.return_stats)
     return ts, metrics
 
 

@@ -40,7 +40,8 @@ from match_jax.ppo import SSL_BETA, PPOConfig, RuntimeValues, Trainer, TrainStat
 
 LOGGED = ("iteration", "env_steps", "success_rate", "break_rate", "episodes", "mean_reward", "contact_fraction",
           "loss", "policy_loss", "value_loss", "ssl_loss", "entropy", "approx_kl", "clip_fraction", "p_force",
-          "action_std", "p_force_contact", "p_force_free", "p_force_contact_axis", "p_force_free_axis", "learning_rate")
+          "action_std", "p_force_contact", "p_force_free", "p_force_contact_axis", "p_force_free_axis", "learning_rate",
+          "actor_steps")
 
 
 class RunError(ValueError):

@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# The learning screen on the authors' task: MATCH, cpu sizes (128 envs per seed), 3 seeds x 1M env steps per
+# arm, each arm adding one piece of the authors' learning recipe to the one before. The "cpu preset as it was"
+# arm is the first 1M env steps of results/suite_authors/runs/match (same seeds), so it is not trained here.
+# Each arm trains into RUNS_DIR/<arm> (resumed where a checkpoint exists) and, the minute it finishes, its
+# config.json and metrics go to results/learning_screen/<arm>/ and the screen table is rewritten.
+#   bash benchmarks/learning_screen.sh RUNS_DIR [ARMS]
+#   nohup bash benchmarks/learning_screen.sh ~/runs/screen > ~/runs/screen.log 2>&1 &
+set -euo pipefail
+cd "$(dirname "$0")/.."
+runs=${1:?usage: learning_screen.sh RUNS_DIR [ARMS]}
+arms=${2:-forcez update std critic gamma}
+out=results/learning_screen
+base=(--method match --preset cpu --seeds 3 --total-steps 1000000 --no-progress)
+# The cpu preset as it was: force-z target 0 N (the top of its range), learning rate 1e-3, gamma 0.99.
+old=(--initial-force-z 0 --learning-rate 1e-3 --gamma 0.99)
+forcez=(--initial-force-z -2)
+update=(--learning-rate 1e-5 --minibatches 150 --set adam_b1=0.999 adam_b2=0.999 adam_eps=1e-8 critic_steps=2
+        kl_threshold=0.05 value_loss=huber normalize_returns=true value_coef=1)
+declare -A flags=(
+  [forcez]="${old[*]} ${forcez[*]}"
+  [update]="${old[*]} ${forcez[*]} ${update[*]}"
+  [std]="${old[*]} ${forcez[*]} ${update[*]} --initial-log-std 0"
+  [critic]="${old[*]} ${forcez[*]} ${update[*]} --initial-log-std 0 --critic-hidden 256 --critic-blocks 3"
+  [gamma]="${old[*]} ${forcez[*]} ${update[*]} --initial-log-std 0 --critic-hidden 256 --critic-blocks 3 --gamma 0.995"
+)
+mkdir -p "$runs" "$out"
+for arm in $arms; do
+  [ -n "${flags[$arm]+x}" ] || { echo "unknown arm $arm; arms: ${!flags[*]}" >&2; exit 2; }
+  dir="$runs/$arm"
+  if [ -e "$dir/config.json" ]; then
+    python train.py --resume --total-steps 1000000 --no-progress --out "$dir"
+  else
+    # shellcheck disable=SC2086  # the arm's flags are words
+    python train.py "${base[@]}" ${flags[$arm]} --out "$dir"
+  fi
+  mkdir -p "$out/$arm"
+  cp "$dir/config.json" "$dir/metrics.jsonl" "$dir/metrics.csv" "$out/$arm/"
+  echo "$arm: python train.py ${base[*]} ${flags[$arm]} --out RUN_DIR" > "$out/$arm/command.txt"
+  echo "[learning_screen] $arm done at $(date -u +%FT%TZ)"
+done
+args=("cpu preset as it was (force-z 0 N, lr 1e-3, gamma 0.99)=results/suite_authors/runs/match")
+for arm in forcez update std critic gamma; do
+  [ -e "$out/$arm/metrics.jsonl" ] && args+=("$arm=$out/$arm")
+done
+python benchmarks/learning_settings.py "${args[@]}" --up-to 1000000 --json "$out/summary.json" | tee "$out/summary.md"
