@@ -8,9 +8,10 @@
 
 A run is evaluated for every seed with the deterministic policy (tanh of the mean, force control
 where p_force > 0.5) with one compiled rollout, run once per seed and noise level, at the training noise unless
---noise-mm / --noise-sweep say otherwise. Printed and written (JSON): per seed and mean +- standard
-error over seeds of success %, break %, time to success (s), mean contact force (N) and, for hybrid
-policies, the force-selection rate on in-contact and on free-space steps.
+--noise-mm / --noise-sweep say otherwise. Printed: per seed and mean +- standard error over seeds of
+success %, break %, time to success (s) and mean contact force (N), time and force by the authors'
+definitions, with a legend line (--all-columns adds ours, both break checks and, for hybrid policies,
+the force-selection rates). The JSON (--json) holds every column.
 """
 
 from __future__ import annotations
@@ -27,7 +28,10 @@ import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from match_jax.cli import Parser
+
+    parser = Parser(prog="eval.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                    short_usage="RUN_DIR [options] | --baseline {spiral,pose} [options]")
     parser.add_argument("run_dir", nargs="?", type=pathlib.Path, help="training run directory to evaluate")
     parser.add_argument("--baseline", choices=["spiral", "pose"], help="evaluate a scripted policy instead")
     parser.add_argument("--episodes", type=int, default=100, help="episodes (per seed for a run; default 100)")
@@ -48,7 +52,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--physics-backend", choices=["jax", "warp"], default=None,
                         help="evaluate a run's policies on this physics backend (default: the run's own)")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", type=pathlib.Path, default=None, help="write the results here")
+    parser.add_argument("--json", type=pathlib.Path, default=None, help="write the results here (every column)")
+    parser.add_argument("--all-columns", action="store_true",
+                        help="a run's table with every column: our time and force beside the authors', both break "
+                             "checks, the force-selection rates (default: success, break, time, force)")
     parser.add_argument("--render", type=pathlib.Path, default=None,
                         help="also save a PNG image strip of one episode (seed 0 of a run) here, and a video of "
                              "it beside the strip (same name, the video format's suffix)")
@@ -112,7 +119,7 @@ def evaluate_run_dir(args) -> dict:
                                 None if break_force is None else [break_force], args.checkpoint, 1000 + args.seed,
                                 physics_backend=args.physics_backend)
     for result in results:
-        print(format_result(result))
+        print(format_result(result, all_columns=args.all_columns))
     return results[0] if args.noise_sweep is None else {"noise_sweep": results}
 
 
@@ -148,7 +155,7 @@ def render_episode(args) -> None:
         env = run.env
         policy = deterministic_policy(run.trainer)
         policy_state = (policy_params["params"], policy_params["policy_stats"])
-        title = f"{args.run_dir} (seed index 0, {args.checkpoint} checkpoint)"
+        title = render.run_title(run.spec, args.run_dir, 0, args.checkpoint)
     else:
         from match_jax.evaluation import baseline_env
 
@@ -167,8 +174,48 @@ def render_episode(args) -> None:
     print(f"wrote {render.render_video(env, states, video_path(args.render, args.video_format))}")
 
 
+def output_problems(args) -> list[str]:
+    """One line per output path (--json, --render and its video) that cannot be written."""
+    from match_jax.cli import unwritable
+
+    paths = [("--json", args.json)]
+    if args.render:
+        paths += [("--render", args.render), ("--render (video)", video_path(args.render, args.video_format))]
+    problems = []
+    for flag, path in paths:
+        problem = None if path is None else unwritable(path)
+        if problem:
+            problems.append(f"{flag} {path}: {problem}")
+    return problems
+
+
+def write_json(summary: dict, path: pathlib.Path) -> bool:
+    """Write the results to `path`; if that fails, print them to stdout, save them to a file in the temp
+    directory and say both in one line on stderr. Whether `path` was written."""
+    text = json.dumps(summary, indent=2, allow_nan=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    except OSError as err:
+        import tempfile
+
+        print(text)
+        fd, fallback = tempfile.mkstemp(prefix="eval_", suffix=".json")
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+        print(f"error: cannot write --json {path} ({err.strerror or err}); the results are printed above and "
+              f"saved to {fallback}", file=sys.stderr)
+        return False
+    print(f"wrote {path}")
+    return True
+
+
 def main(argv=None) -> int:
     args = parse_args(argv)
+    problems = output_problems(args)
+    if problems:  # before any work
+        print(f"error: {problems[0]}", file=sys.stderr)
+        return 2
     from match_jax import compile_cache
 
     compile_cache.enable()
@@ -198,12 +245,14 @@ def main(argv=None) -> int:
                                     math.inf if args.unbreakable else args.break_force, args.seed, args.batch)
         print(format_table(summary))
     summary["wall_clock_s"] = round(time.time() - start, 1)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(summary, indent=2, allow_nan=True))
-        print(f"wrote {args.json}")
+    if args.json and not write_json(summary, args.json):
+        return 1
     if args.render:
-        render_episode(args)
+        try:
+            render_episode(args)
+        except OSError as err:
+            print(f"error: cannot write --render {args.render} or its video ({err.strerror or err})", file=sys.stderr)
+            return 1
     return 0
 
 

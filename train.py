@@ -6,6 +6,7 @@
     python train.py --resume --out runs/match_cpu          # continue an interrupted run
     python train.py --resume --total-steps 8000000 --out runs/match_cpu   # train a finished run further
 
+Ctrl-C (or SIGTERM) stops a run once the running chunk is done and saved; --resume continues it.
 All seeds train in one XLA program. The run directory gets config.json, metrics.jsonl/.csv (one row
 per iteration and seed: success and break rate of the episodes that ended, losses, ...) and orbax
 checkpoints (latest full state; best policy per seed by training success rate).
@@ -44,7 +45,10 @@ def _three_floats(text: str) -> tuple[float, float, float]:
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from match_jax.cli import Parser
+
+    parser = Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                    short_usage="--method {pose,vices,hybrid,match} --out DIR [options] | --resume --out DIR")
     parser.add_argument("--method", choices=METHODS, help="pose | vices | hybrid (Hybrid-Basic) | match")
     parser.add_argument("--no-ssl", action="store_true", help="no supervised selection loss (beta = 0)")
     parser.add_argument("--ssl-coef", type=float, default=None,
@@ -281,8 +285,22 @@ def main(argv=None) -> int:
 
     compile_cache.enable()
     from match_jax.checkpoints import CheckpointError
-    from match_jax.training import RunError, train
+    from match_jax.cli import unwritable
+    from match_jax.training import RunError, holds_run, train
 
+    # the run directory, before anything is built or compiled
+    if not args.resume and holds_run(args.out):
+        print(f"error: --out {args.out} already holds a run: add --resume to continue it, or choose another --out",
+              file=sys.stderr)
+        return 2
+    problem = unwritable(args.out, directory=True)
+    if problem:
+        print(f"error: --out {args.out} cannot be a run directory: {problem}", file=sys.stderr)
+        return 2
+    problem = unwritable(args.tensorboard, directory=True) if isinstance(args.tensorboard, pathlib.Path) else None
+    if problem:
+        print(f"error: --tensorboard {args.tensorboard}: {problem}", file=sys.stderr)
+        return 2
     logger = None
     if args.tensorboard is not None:
         from match_jax.tb_logging import TensorBoardLogger, TensorBoardUnavailable
@@ -299,7 +317,7 @@ def main(argv=None) -> int:
     except (RunError, CheckpointError, ValueError) as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM; train() said what was saved and how to resume
         return 130
     finally:
         if logger is not None:

@@ -14,7 +14,8 @@ runs=${1:?usage: suite_authors_runs.sh RUNS_DIR [NAMES]}
 names=${2:-pose hybrid match match_nossl hybrid_nossl pose_noise2.5 pose_unbreakable vices_unbreakable \
 hybrid_unbreakable match_unbreakable}
 export_dir=results/suite_authors
-sizes=(--total-steps 2500000 --episodes 500 --sweep-episodes 500)
+# --initial-force-z 0: the untrained force-z target these runs were trained with (the cpu preset's then).
+sizes=(--total-steps 2500000 --episodes 500 --sweep-episodes 500 --initial-force-z 0)
 mkdir -p "$runs/runs" "$runs/eval"
 for src in results/authors_task/runs/{pose,hybrid,match} "$export_dir"/runs/*; do
   [ -d "$src/actors" ] && [ ! -e "$runs/runs/$(basename "$src")" ] && cp -r "$src" "$runs/runs/"

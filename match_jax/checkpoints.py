@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import logging
 import pathlib
+import sys
 
 import jax
 import numpy as np
@@ -33,6 +34,37 @@ class _ReadOnlyNotices(logging.Filter):
 
 
 logging.getLogger("absl").addFilter(_ReadOnlyNotices())
+
+
+class _QuietClosedLoop:
+    """An unraisable-exception hook that drops the "Event loop is closed" reports of a failed restore and
+    passes everything else to the hook it wraps. When orbax's restore of a damaged checkpoint fails, it
+    closes its asyncio event loop while other tensorstore reads are still in flight; each of those, on
+    completing, tries to wake the closed loop, and Python prints that RuntimeError's traceback (after
+    the one-line CheckpointError)."""
+
+    def __init__(self, hook):
+        self.hook = hook
+
+    def __call__(self, unraisable) -> None:
+        if not _closed_loop_report(unraisable):
+            self.hook(unraisable)
+
+
+def _closed_loop_report(unraisable) -> bool:
+    exc = unraisable.exc_value
+    if not (isinstance(exc, RuntimeError) and str(exc) == "Event loop is closed" and unraisable.object is None):
+        return False
+    tb = unraisable.exc_traceback
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb is not None and tb.tb_frame.f_code.co_name == "_check_closed"
+
+
+def _quiet_closed_loop_reports() -> None:
+    """Install `_QuietClosedLoop` over the current sys.unraisablehook (once)."""
+    if not isinstance(sys.unraisablehook, _QuietClosedLoop):
+        sys.unraisablehook = _QuietClosedLoop(sys.unraisablehook)
 
 
 def _manager(directory: pathlib.Path, read_only: bool = False) -> ocp.CheckpointManager:
@@ -70,6 +102,7 @@ def restore(directory: pathlib.Path, target, step: int | None = None):
     leaves, treedef = jax.tree_util.tree_flatten(target)
     abstract = {f"leaf{i:05d}": jax.ShapeDtypeStruct(np.shape(leaf), leaf.dtype)
                 for i, leaf in enumerate(leaves) if np.size(leaf) > 0}
+    _quiet_closed_loop_reports()  # a damaged checkpoint: one line, not the in-flight reads' tracebacks as well
     try:
         with _manager(directory, read_only=True) as manager:
             saved = manager.restore(step, args=ocp.args.StandardRestore(abstract))

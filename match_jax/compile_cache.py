@@ -46,3 +46,14 @@ def enable(environ=os.environ) -> pathlib.Path | None:
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
     return path
+
+
+def describe() -> str:
+    """Whether JAX's persistent compilation cache is on in this process, and its directory, in a few words:
+    'compilation cache on: DIR' or 'compilation cache off'."""
+    import jax
+
+    path = jax.config.jax_compilation_cache_dir
+    if path and jax.config.jax_enable_compilation_cache:
+        return f"compilation cache on: {path}"
+    return "compilation cache off"

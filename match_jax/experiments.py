@@ -195,8 +195,10 @@ def export_suite(cfg: SuiteConfig, dest: pathlib.Path, results: dict[str, list[d
 
 
 def parse_args(argv=None) -> SuiteConfig:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     allow_abbrev=False)
+    from match_jax.cli import Parser
+
+    parser = Parser(prog="python -m match_jax.experiments", short_usage="--out DIR [options]", description=__doc__,
+                    formatter_class=argparse.RawDescriptionHelpFormatter, allow_abbrev=False)
     parser.add_argument("--out", type=pathlib.Path, required=True)
     parser.add_argument("--preset", choices=["cpu", "paper", "tiny"], default="cpu")
     parser.add_argument("--task", choices=sorted(TASKS), default="authors",

@@ -2,7 +2,7 @@
 MJX trajectory.
 
     states = record_episode(env, policy, policy_state, key)      # jitted MJX rollout, numpy out
-    render_strip(env, states, "episode.png", frames=6)          # PNG: frames + time, phase, force
+    render_strip(env, states, "episode.png", frames=6)          # PNG: two views x frames + time, phase, force
     render_video(env, states, "episode.gif")                    # every policy step, real time (or .mp4)
 
 Rendering needs an OpenGL backend. MuJoCo picks it from the MUJOCO_GL environment variable when
@@ -17,6 +17,7 @@ of crashing. GIFs need only Pillow (matplotlib's dependency); mp4 needs imageio 
 from __future__ import annotations
 
 import importlib.util
+import math
 import pathlib
 
 import jax
@@ -85,25 +86,50 @@ def _make_renderer(model, width: int, height: int):
         raise RenderUnavailable(_FAILED[0]) from None
 
 
+# The strip's views, each a free camera aimed at a point above the hole top (world offset, m). The close-up
+# looks almost horizontally at the hole top from the side, below the hand, so the hand never hides the peg
+# tip, and draws the hole see-through so the inserted part of the peg stays in sight; the overview shows the
+# hand and peg above the hole from higher up, as the earlier default did.
+CLOSE_UP = {"distance": 0.13, "azimuth": 135.0, "elevation": -4.0, "lookat_offset": (0.0, 0.0, 0.012),
+            "hole_alpha": 0.3}
+OVERVIEW = {"distance": 0.3, "azimuth": 150.0, "elevation": -15.0, "lookat_offset": (0.0, 0.0, 0.03),
+            "hole_alpha": 1.0}
+VIEWS = {"overview": OVERVIEW, "close-up from the side, hole see-through": CLOSE_UP}
+
+
 def render_frames(env, states: dict[str, np.ndarray], steps, width: int = 320, height: int = 320,
-                  distance: float = 0.22, azimuth: float = 135.0, elevation: float = -20.0) -> list[np.ndarray]:
+                  distance: float = CLOSE_UP["distance"], azimuth: float = CLOSE_UP["azimuth"],
+                  elevation: float = CLOSE_UP["elevation"], lookat_offset=CLOSE_UP["lookat_offset"],
+                  hole_alpha: float = CLOSE_UP["hole_alpha"]) -> list[np.ndarray]:
     """RGB images (height, width, 3) of the C model at the given policy steps (0 = after reset), with a
-    free camera looking at the hole top from `distance` meters."""
+    free camera `distance` meters from the hole top plus `lookat_offset` (world, m), at `azimuth` and
+    `elevation` (degrees). The default is the close-up (`CLOSE_UP`): a low side view of the hole top.
+    `hole_alpha` < 1 draws the hole's walls translucent and its bore (the thin capsules lining it) nearly
+    invisible, so a peg inside the hole shows through; the model's colors are restored afterwards."""
     import mujoco
 
     model = env.mj_model
     if width > model.vis.global_.offwidth or height > model.vis.global_.offheight:
         raise ValueError(f"frame size {width}x{height} exceeds the model's offscreen buffer "
                          f"{model.vis.global_.offwidth}x{model.vis.global_.offheight}")
+    if not 0.0 <= hole_alpha <= 1.0:
+        raise ValueError(f"hole_alpha must be in [0, 1], got {hole_alpha}")
     data = mujoco.MjData(model)
     data.mocap_pos[env.ids.hole_mocap] = states["hole_pos"]
     data.mocap_quat[env.ids.hole_mocap] = states["hole_quat"]
     camera = mujoco.MjvCamera()
-    camera.lookat[:] = states["hole_pos"] + np.array([0.0, 0.0, env.hole_depth])
+    camera.lookat[:] = states["hole_pos"] + np.array([0.0, 0.0, env.hole_depth]) + np.asarray(lookat_offset)
     camera.distance, camera.azimuth, camera.elevation = distance, azimuth, elevation
+    rgba = model.geom_rgba.copy()
+    hole = model.geom_bodyid == model.body_mocapid.tolist().index(env.ids.hole_mocap)
+    bore = np.array([(mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_GEOM, i) or "").startswith("bore")
+                     for i in range(model.ngeom)])
     renderer = _make_renderer(model, width, height)
     images = []
     try:
+        if hole_alpha < 1.0:
+            model.geom_rgba[hole & ~bore, 3] = hole_alpha
+            model.geom_rgba[hole & bore, 3] = 0.2 * hole_alpha
         for step in steps:
             data.qpos[:] = states["qpos"][step]
             data.qvel[:] = 0.0
@@ -111,6 +137,7 @@ def render_frames(env, states: dict[str, np.ndarray], steps, width: int = 320, h
             renderer.update_scene(data, camera)
             images.append(renderer.render().copy())
     finally:
+        model.geom_rgba[:] = rgba
         renderer.close()
     return images
 
@@ -181,28 +208,74 @@ def render_video(env, states: dict[str, np.ndarray], path: str | pathlib.Path, f
     return path
 
 
-def render_strip(env, states: dict[str, np.ndarray], path: str | pathlib.Path, frames: int = 6,
-                 title: str = "") -> pathlib.Path:
-    """Save a PNG strip of `frames` evenly spaced moments of the episode (up to its end), each captioned
-    with the time (s), the task phase and the largest contact force of that step (N)."""
+def strip_steps(states: dict[str, np.ndarray], frames: int) -> np.ndarray:
+    """The policy steps a strip shows: `frames` evenly spaced from the reset (0) to the first success, or to
+    the episode's end (`episode_length`) when it never succeeds (duplicates dropped)."""
+    if frames < 2:
+        raise ValueError(f"frames must be >= 2, got {frames}")
+    succeeded = np.nonzero(np.asarray(states["success"]) > 0)[0]
+    end = int(succeeded[0]) + 1 if len(succeeded) else episode_length(states)
+    return np.unique(np.linspace(0, end, frames).round().astype(int))
+
+
+def run_title(spec, run_dir: str | pathlib.Path, seed_index: int, checkpoint: str) -> str:
+    """A strip's title for a training run: method, task and the run's folder name (no machine's path), e.g.
+    "MATCH, the authors' task: run 'match', seed index 0, best checkpoint"."""
+    from match_jax.envs.tasks import TASKS, task_config
+
+    labels = {"pose": "Pose", "vices": "VICES", "hybrid": "Hybrid-Basic", "match": "MATCH"}
+    names = {"authors": "the authors' task", "earlier": "the earlier task variant"}
+    keys = {key for task in TASKS.values() for key in task["settings"]}
+    env = spec.env
+    task = next((name for name in ("earlier", "authors")  # 'authors' sets nothing: the last to try
+                 if env is not None and all(getattr(env, k) == getattr(task_config(name, env.control), k)
+                                            for k in keys)), None)
+    where = names.get(task, "a custom task") + ("" if env is None or math.isfinite(env.break_force)
+                                                else ", unbreakable peg")
+    return (f"{labels.get(spec.ppo.method, spec.ppo.method)}, {where}: run '{pathlib.Path(run_dir).resolve().name}', "
+            f"seed index {seed_index}, {checkpoint} checkpoint")
+
+
+def strip_figure(env, states: dict[str, np.ndarray], frames: int = 6, title: str = "",
+                 views: dict[str, dict] | None = None):
+    """The matplotlib figure of `render_strip` (open; the caller saves and closes it)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    if frames < 2:
-        raise ValueError(f"frames must be >= 2, got {frames}")
-    length = episode_length(states)
-    steps = np.unique(np.linspace(0, length, frames).round().astype(int))
-    images = render_frames(env, states, steps)
-    fig, axes = plt.subplots(1, len(steps), figsize=(2.4 * len(steps), 2.9))
-    for ax, step, image in zip(np.atleast_1d(axes), steps, images):
-        ax.imshow(image)
-        ax.set_axis_off()
-        ax.set_title("\n".join(caption(env, states, int(step))), fontsize=8)
+    views = VIEWS if views is None else views
+    steps = strip_steps(states, frames)
+    rows = [render_frames(env, states, steps, **camera) for camera in views.values()]
+    top = 0.3 if title else 0.0  # inches above the frames' captions for the title
+    fig, axes = plt.subplots(len(rows), len(steps), figsize=(2.4 * len(steps), 2.5 * len(rows) + 0.35 + top),
+                             squeeze=False)
+    for r, (label, images) in enumerate(zip(views, rows)):
+        for c, (step, image) in enumerate(zip(steps, images)):
+            ax = axes[r, c]
+            ax.imshow(image)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            for spine in ax.spines.values():
+                spine.set_visible(False)
+            if r == 0:
+                ax.set_title("\n".join(caption(env, states, int(step))), fontsize=9)
+        axes[r, 0].set_ylabel(label if len(label) < 20 else label.replace(", ", ",\n"), fontsize=8)
     if title:
-        fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 1.0 - top / fig.get_figheight()), h_pad=0.3, w_pad=0.3)
+    return fig
+
+
+def render_strip(env, states: dict[str, np.ndarray], path: str | pathlib.Path, frames: int = 6,
+                 title: str = "", views: dict[str, dict] | None = None) -> pathlib.Path:
+    """Save a PNG strip of `frames` evenly spaced moments of the episode (`strip_steps`: up to its first
+    success, else its end), one row per view (`views`: row label -> `render_frames` camera keywords;
+    default `VIEWS`, an overview and a low close-up of the hole), each frame captioned with the time (s),
+    the task phase and the largest contact force of that step (N); `title` above the captions."""
+    import matplotlib.pyplot as plt
+
+    fig = strip_figure(env, states, frames, title, views)
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)

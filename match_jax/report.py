@@ -138,6 +138,17 @@ def pooled_profile(profile: dict) -> np.ndarray:
     return np.where(total > 0, pooled, np.nan)  # a phase no episode reached: NaN
 
 
+def selection_figure_data(row: dict) -> dict:
+    """An evaluation row's selection profile with its force selection on in-contact axis-steps (mean over
+    seeds, pooled over axes and per axis; None where the row lacks it) as 'force_selected_contact'."""
+    def mean(key):
+        value = row["aggregate"].get(key, {}).get("mean")
+        return None if value is None or math.isnan(value) else value
+
+    keys = {"per_axis": "force_selected_contact_per_axis", **{a: f"force_selected_contact_{a}" for a in "xyz"}}
+    return {**row["selection_profile"], "force_selected_contact": {k: mean(v) for k, v in keys.items()}}
+
+
 def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict], task: str = "authors") -> list[claims.Claim]:
     """The paper's qualitative claims on this suite's per-seed evaluations and learning curves of finished
     runs. Mean force is the authors' definition on their task (`task='authors'`), ours on the earlier variant."""
@@ -417,7 +428,7 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     sweeps = {SUITE[n].label: [r for r in g if r["noise_type"] == kind] for n, g in results.items()}
     plots.noise_robustness(sweeps, out / "noise_robustness.png")
     plots.unbreakable_robustness(sweeps, out / "unbreakable_robustness.png")
-    profiles = {SUITE[n].label: _table1_row(g)["selection_profile"] for n, g in results.items() if n in HYBRID}
+    profiles = {SUITE[n].label: selection_figure_data(_table1_row(g)) for n, g in results.items() if n in HYBRID}
     stale_profile = out / "selection_profile.png"
     if profiles:
         plots.selection_profile(profiles, stale_profile)
@@ -446,11 +457,13 @@ def write_report(cfg: SuiteConfig, results: dict[str, list[dict]], command: str)
     lines += ["", "## Figures", "",
               "- `learning_curves.png`: training success vs env steps, mean and 95% CI over seeds",
               "- `noise_robustness.png`: success (top) and break rate (bottom) vs the noise sweep's level, breakable "
-              "peg; mean and 95 % interval over seeds",
+              "peg; mean and 95 % interval over seeds (clipped to 0-100 %)",
               "- `unbreakable_robustness.png`: success vs the noise sweep's level, unbreakable peg (runs trained "
-              "unbreakable dashed); mean and 95 % interval over seeds"]
+              "unbreakable dashed); mean and 95 % interval over seeds (clipped to 0-100 %)"]
     if profiles:
-        lines += ["- `selection_profile.png`: P(force) per axis over approach / contact / insertion (time-normalised)"]
+        lines += ["- `selection_profile.png`: per hybrid run, the mean probability of force control per axis over "
+                  "all steps of approach / contact / insertion (time-normalised), titled with its force selection "
+                  "on in-contact axis-steps (the per-axis in-contact column above)"]
     lines += [""]
     path = out / "REPORT.md"
     path.write_text("\n".join(lines))

@@ -553,7 +553,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("policy", type=pathlib.Path, help="ONNX file written by match_jax.export (its .json beside it)")
     parser.add_argument("--trials", type=int, default=30)
-    parser.add_argument("--noise-mm", type=float, default=0.0, help="hole-position observation error level, mm")
+    parser.add_argument("--noise-mm", type=float, default=0.0,
+                        help="hole-position observation error level, mm (default 0: the hole observed where it is, "
+                             "as a robot trial at a measured hole; eval.py's default is the training noise, "
+                             "--noise-mm 1 --noise-type gaussian here)")
     parser.add_argument("--noise-type", choices=NOISE_TYPES, default="shell",
                         help="'shell': radius U[previous shell edge, level] in a random direction (default); "
                              "'gaussian': sd per axis")

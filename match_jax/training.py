@@ -7,8 +7,9 @@
 A run directory holds `config.json` (the resolved RunSpec), `metrics.jsonl` (one row per iteration
 and seed), `metrics.csv` (the same, written at the end of each chunk) and `checkpoints/` (see
 `match_jax.checkpoints`). Between jitted chunks of `iterations_per_chunk` PPO iterations the host
-logs, updates the progress bar and saves checkpoints; an interrupted run resumes from its latest
-checkpoint and loses at most one chunk of work. Checkpoints are written from a host copy of the state
+logs, updates the progress bar and saves checkpoints. Ctrl-C or SIGTERM stops a run after the running
+chunk, saved as any chunk is; a run killed otherwise resumes from its latest checkpoint and loses at
+most one chunk of work. Checkpoints are written from a host copy of the state
 on a background thread while the next chunk runs (at the paper preset with 5 seeds a chunk's
 checkpoints are ~2 GB); the next save, the end of the run and an interruption wait for that write.
 """
@@ -21,8 +22,10 @@ import dataclasses
 import functools
 import json
 import math
+import os
 import pathlib
 import signal
+import sys
 import threading
 import time
 
@@ -31,6 +34,7 @@ import jax
 import numpy as np
 
 from match_jax import checkpoints
+from match_jax.cli import unwritable
 from match_jax.controllers.action_spaces import ActionConfig
 from match_jax.controllers.osc import ControllerConfig
 from match_jax.envs import FPiHConfig, FPiHEnv
@@ -350,6 +354,20 @@ def read_metrics(run_dir: str | pathlib.Path) -> list[dict]:
     return rows
 
 
+class TrainingStopped(KeyboardInterrupt):
+    """Raised by `train` when Ctrl-C or SIGTERM stopped it after the running chunk, whose metric rows and
+    checkpoints were written as at any chunk's end; `summary` is the dict train would have returned."""
+
+    def __init__(self, summary: dict):
+        super().__init__(f"stopped after iteration {summary['iterations']}")
+        self.summary = summary
+
+
+def holds_run(run_dir: str | pathlib.Path) -> bool:
+    """Whether `run_dir` holds a run's training state (a latest checkpoint to resume from)."""
+    return checkpoints.latest_step(checkpoints.latest_dir(pathlib.Path(run_dir))) is not None
+
+
 def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = False, progress: bool = True,
           max_chunks: int | None = None, time_budget_s: float | None = None, total_steps: int | None = None,
           on_rows=None) -> dict:
@@ -362,6 +380,11 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     that many seconds (wall clock, compilation included) after the call began. Either way the run is
     checkpointed and can be resumed later. `on_rows(rows)`, if given, gets each chunk's metric rows
     once they are in metrics.jsonl (e.g. `tb_logging.TensorBoardLogger`).
+
+    Ctrl-C or SIGTERM (in the main thread) lets the running chunk finish, writes its rows and
+    checkpoints, then raises `TrainingStopped` (a KeyboardInterrupt); a second Ctrl-C raises
+    KeyboardInterrupt without writing the running chunk. A directory that cannot be a run directory
+    (it already holds a run, cannot be written) is a RunError before anything is compiled.
     """
     if time_budget_s is not None and not time_budget_s > 0:
         raise RunError(f"time budget must be > 0 seconds, got {time_budget_s}")
@@ -376,14 +399,19 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         spec = load_spec(run_dir)
         if checkpoints.latest_step(latest) is None:
             raise RunError(f"cannot resume: no checkpoint in {latest}")
+        _check_writable(run_dir)
     else:
         if spec is None:
             raise RunError("train() needs a RunSpec unless resume=True")
-        if checkpoints.latest_step(latest) is not None:
-            raise RunError(f"{run_dir} already holds a run; pass resume=True (--resume) or choose another directory")
-        run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "config.json").write_text(spec.to_json())
-        (run_dir / "metrics.jsonl").write_text("")
+        if holds_run(run_dir):
+            raise RunError(f"{run_dir} already holds a run: continue it with resume=True, or choose another directory")
+        _check_writable(run_dir)
+        try:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            (run_dir / "config.json").write_text(spec.to_json())
+            (run_dir / "metrics.jsonl").write_text("")
+        except OSError as err:
+            raise RunError(f"cannot write the run directory {run_dir}: {err.strerror or err}") from None
 
     if total_steps is not None and total_steps != spec.ppo.total_steps:
         if spec.ppo.learning_rate_end is not None:
@@ -394,6 +422,7 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     ppo = spec.ppo
     chunks_total = -(-ppo.num_iterations // ppo.iterations_per_chunk)  # training runs whole chunks
     steps_per_chunk = ppo.steps_per_iteration * ppo.iterations_per_chunk
+    clock_offset = 0.0  # wall_clock_s adds up over the calls that trained the run
     if resume:
         state = run.restore_latest()
         if total_steps is not None:
@@ -403,6 +432,7 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
                                "has trained")
             (run_dir / "config.json").write_text(spec.to_json())
         _truncate_metrics(run_dir / "metrics.jsonl", int(np.asarray(state.iteration)[0]))
+        clock_offset = _last_wall_clock(run_dir)
     else:
         state = run.initial_state()
     state = shard_envs(state, run.env.config.physics_backend)
@@ -412,25 +442,34 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
     bar = None
     if progress:
         from tqdm.auto import tqdm
+        # tqdm's own rate would count steps per seed and the compilation; the postfix gives env steps/s instead
         bar = tqdm(total=chunks_total * steps_per_chunk, initial=done_chunks * steps_per_chunk, unit="step",
-                   unit_scale=True, desc=f"{ppo.method} x{spec.num_seeds} seeds", dynamic_ncols=True)
-    start, steps_this_session, chunks_run = time.time(), 0, 0
+                   unit_scale=True, desc=f"{ppo.method} x{spec.num_seeds} seeds", dynamic_ncols=True,
+                   bar_format="{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} env steps per seed "
+                              "[{elapsed}{postfix}]")
+    start, steps_this_session, chunks_run, first_chunk_end = time.time(), 0, 0, None
     last_rows: list[dict] = []
-    previous_handler = _stop_on_sigterm()
     writer = _CheckpointWriter()
+    stop = _StopSignals(_say(bar))
+    stop.install()
     try:
-        while (done_chunks < chunks_total and (max_chunks is None or chunks_run < max_chunks)
+        note = _compile_note(run) if bar is not None else None
+        if note:
+            bar.set_postfix_str(note)
+        while (not stop.requested and done_chunks < chunks_total and (max_chunks is None or chunks_run < max_chunks)
                and (time_budget_s is None or chunks_run == 0 or time.time() - call_start < time_budget_s)):
             state, metrics = run.chunk(state)
             rows = _rows(metrics, spec.seed)
+            now = time.time()
             with (run_dir / "metrics.jsonl").open("a") as f:
                 for row in rows:
-                    row["wall_clock_s"] = round(time.time() - start, 2)
+                    row["wall_clock_s"] = round(clock_offset + now - start, 2)
                     f.write(json.dumps(row) + "\n")
             if on_rows is not None:
                 on_rows(rows)
             done_chunks += 1
             chunks_run += 1
+            first_chunk_end = first_chunk_end or now
             steps_this_session += steps_per_chunk * spec.num_seeds
             last_rows = rows[-spec.num_seeds:]
             iteration = last_rows[0]["iteration"]
@@ -445,29 +484,27 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
             writer.submit(_write_checkpoints, run, _host_copy(state), new_best)
             _write_csv(run_dir / "metrics.jsonl", run_dir / "metrics.csv")
             if bar is not None:
+                # env steps of all seeds per second over this call's chunks after the first (which compiles)
+                rate = None if chunks_run < 2 else \
+                    steps_per_chunk * spec.num_seeds * (chunks_run - 1) / max(now - first_chunk_end, 1e-9)
+                left = None if rate is None else (chunks_total - done_chunks) * steps_per_chunk * spec.num_seeds / rate
+                bar.set_postfix_str(_progress_note(last_rows, rate, left), refresh=False)
                 bar.update(steps_per_chunk)
-                rate = steps_this_session / max(time.time() - start, 1e-9)
-                bar.set_postfix(success=_fmt_mean(last_rows, "success_rate"), brk=_fmt_mean(last_rows, "break_rate"),
-                                env_steps_s=f"{rate:,.0f}")
     except KeyboardInterrupt:
         if bar is not None:
             bar.close()
         writer.wait()  # the last chunk's checkpoint is complete before we say what can be resumed
-        if checkpoints.latest_step(latest) is None:
-            print(f"interrupted before the first checkpoint: nothing to resume; start {run_dir} again")
-        else:
-            print(f"interrupted; the latest checkpoint is kept: resume with --resume --out {run_dir}")
+        _say_how_to_resume(run_dir)
         raise
     finally:
         try:
             writer.close()
         finally:
-            if previous_handler is not None:
-                signal.signal(signal.SIGTERM, previous_handler)
+            stop.uninstall()
     if bar is not None:
         bar.close()
     elapsed = time.time() - start
-    return {
+    summary = {
         "run_dir": str(run_dir),
         "iterations": int(np.asarray(state.iteration)[0]),
         "env_steps_per_seed": int(np.asarray(state.env_steps)[0]),
@@ -478,18 +515,125 @@ def train(spec: RunSpec | None, run_dir: str | pathlib.Path, resume: bool = Fals
         "last_break_rate": [r["break_rate"] for r in last_rows],
         "best_success_rate": [None if rate < 0 else rate for rate in best],  # None: no episode ended yet
     }
+    if stop.requested:
+        _say_how_to_resume(run_dir, summary["iterations"])
+        raise TrainingStopped(summary)
+    return summary
 
 
-def _stop_on_sigterm():
-    """Turn SIGTERM into KeyboardInterrupt (raised once the running chunk returns), so `kill` stops a
-    run as Ctrl-C does. Returns the previous handler (None off the main thread)."""
-    if threading.current_thread() is not threading.main_thread():
+def _check_writable(run_dir: pathlib.Path) -> None:
+    problem = unwritable(run_dir, directory=True)
+    if problem:
+        raise RunError(f"cannot write the run directory {run_dir}: {problem}")
+
+
+def _last_wall_clock(run_dir: pathlib.Path) -> float:
+    """The wall_clock_s of the last metrics row (0 if none): where a resumed run's clock continues."""
+    rows = read_metrics(run_dir)
+    return float(rows[-1].get("wall_clock_s") or 0.0) if rows else 0.0
+
+
+def _say_how_to_resume(run_dir: pathlib.Path, stopped_after: int | None = None) -> None:
+    """The line a stop prints: after Ctrl-C/SIGTERM let the chunk that ended at iteration `stopped_after`
+    be saved, or (None) after an interruption that left the running chunk unsaved."""
+    what = "interrupted" if stopped_after is None else "stopped"
+    resume = f"resume with: python train.py --resume --out {run_dir}"
+    if not holds_run(run_dir):
+        print(f"{what} before the first checkpoint: nothing to resume; start {run_dir} again")
+    elif stopped_after is None:
+        print(f"interrupted; the latest checkpoint is kept: {resume}")
+    else:
+        print(f"stopped after iteration {stopped_after}, its metrics and checkpoint saved: {resume}")
+
+
+def _compile_note(run: Run) -> str | None:
+    """What the first chunk's wait is, for the progress bar: compiling (unless this process already
+    compiled the chunk), and whether JAX's persistent compilation cache is on."""
+    compiled = getattr(run.programs.chunk, "_cache_size", lambda: 0)()
+    if compiled:
         return None
+    from match_jax import compile_cache
 
-    def handler(signum, frame):
-        raise KeyboardInterrupt(f"signal {signum}")
+    return f"compiling the first chunk ({compile_cache.describe()})"
 
-    return signal.signal(signal.SIGTERM, handler)
+
+def _progress_note(rows: list[dict], env_steps_per_s: float | None, left_s: float | None) -> str:
+    note = f"success {_fmt_mean(rows, 'success_rate')}, breaks {_fmt_mean(rows, 'break_rate')}"
+    if env_steps_per_s is not None:
+        from tqdm import tqdm
+        note += f", {env_steps_per_s:,.0f} env steps/s, {tqdm.format_interval(left_s)} left"
+    return note
+
+
+def _say(bar):
+    """A print to stderr that does not break the progress bar `bar` (None: no bar)."""
+    if bar is None:
+        return lambda message: print(message, file=sys.stderr, flush=True)
+    return lambda message: bar.write(message, file=sys.stderr)
+
+
+class _StopSignals:
+    """Ctrl-C (SIGINT) and SIGTERM while `train` runs: the first sets `requested` (its signal number),
+    and training stops once the running chunk is written; a second raises KeyboardInterrupt. Python runs
+    a signal handler only when the main thread is back in Python, i.e. once the running chunk (one
+    blocking XLA call) returns; a thread woken through `signal.set_wakeup_fd` says at once, through `say`,
+    that the stop is coming. Only in the main thread; elsewhere signals are left alone."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self, say):
+        self.requested: int | None = None
+        self._say = say
+        self._previous: dict = {}
+        self._pipe: tuple[int, int] | None = None
+        self._previous_wakeup = -1
+        self._thread: threading.Thread | None = None
+
+    def install(self) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            return
+        for signum in self.SIGNALS:
+            self._previous[signum] = signal.signal(signum, self.handle)
+        read_fd, write_fd = os.pipe()
+        os.set_blocking(write_fd, False)
+        try:
+            self._previous_wakeup = signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+        except (ValueError, OSError):  # no wake-up descriptor here: no notice before the chunk returns
+            os.close(read_fd)
+            os.close(write_fd)
+            return
+        self._pipe = (read_fd, write_fd)
+        self._thread = threading.Thread(target=self._watch, args=(read_fd,), name="stop-notice", daemon=True)
+        self._thread.start()
+
+    def handle(self, signum, frame) -> None:
+        if self.requested is not None:
+            raise KeyboardInterrupt(f"signal {signum}")
+        self.requested = signum
+
+    def _watch(self, read_fd: int) -> None:
+        while True:
+            data = os.read(read_fd, 64)
+            if not data:  # uninstall() closed the pipe
+                return
+            signals = [byte for byte in data if byte in self.SIGNALS]
+            if signals:
+                self._say(f"{signal.Signals(signals[0]).name}: stopping once the running chunk is done and saved "
+                          "(Ctrl-C again: stop without saving it)")
+                return
+
+    def uninstall(self) -> None:
+        if self._pipe is not None:
+            signal.set_wakeup_fd(self._previous_wakeup)
+            read_fd, write_fd = self._pipe
+            os.close(write_fd)  # ends the watcher thread
+            self._thread.join(timeout=5)
+            os.close(read_fd)
+            self._pipe = None
+        for signum, previous in self._previous.items():
+            if previous is not None:  # None: a handler not set from Python, which cannot be put back
+                signal.signal(signum, previous)
+        self._previous = {}
 
 
 def _fmt_mean(rows: list[dict], key: str) -> str:

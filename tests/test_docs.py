@@ -1,4 +1,4 @@
-"""The README's and docs' relative links lead to files that exist and to headings that exist."""
+"""The README's, the results index's and docs' relative links lead to files that exist and to headings that exist."""
 
 import pathlib
 import re
@@ -25,7 +25,7 @@ def test_github_anchor_matches_githubs_rule():
 
 
 def test_relative_links_and_anchors_resolve():
-    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    pages = [ROOT / "README.md", ROOT / "results" / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
     broken = []
     for page in pages:
         for target in LINK.findall(page.read_text()):

@@ -1,4 +1,7 @@
-"""Table 1 metrics from hand-built trajectories with known outcomes."""
+"""Table 1 metrics from hand-built trajectories with known outcomes; eval.py's table, usage errors and
+output paths."""
+
+import pathlib
 
 import numpy as np
 import pytest
@@ -188,3 +191,86 @@ def test_runs_differing_in_break_force_noise_or_ssl_share_one_evaluation_program
                      (PPOConfig(method="match"), dataclasses.replace(hybrid, episode_steps=100))]:
         assert evaluation_config(ppo, env) != match
     assert evaluation_config(PPOConfig(method="pose"), FPiHConfig(control="pose")) != match
+
+
+def _result(hybrid=True):
+    from match_jax.evaluation import AXIS_COLUMNS, COLUMNS
+
+    per_seed = []
+    for i in range(2):
+        row = {c: 0.25 for c in COLUMNS + AXIS_COLUMNS}
+        row.update(seed=i, success_rate=0.9 - 0.1 * i, break_rate=0.05, mean_time_to_success_s=7.77,
+                   authors_time_to_success_s=4.44, mean_force_n=8.88, authors_mean_force_n=2.22)
+        per_seed.append(row)
+    aggregate = {c: {"mean": float(np.mean([r[c] for r in per_seed])), "se": 0.01} for c in per_seed[0] if c != "seed"}
+    return dict(method="match", ssl_coef=0.3, checkpoint="best", episodes_per_seed=100, seeds=2, noise_mm=1.0,
+                noise_type="gaussian", break_force_n=10.0, break_sampling="policy_step", per_seed=per_seed,
+                aggregate=aggregate)
+
+
+def test_the_printed_table_defaults_to_the_headline_columns_with_a_legend():
+    """Success, break, time and force (the authors' time and force, as the README quotes them), a legend
+    line, and narrow; every column with all_columns=True."""
+    from match_jax.evaluation import format_result
+
+    lines = format_result(_result()).splitlines()
+    assert lines[1].split() == ["seed", "success", "%", "break", "%", "time", "(s)", "force", "(N)"]
+    assert lines[2].split() == ["0", "90.0", "5.00", "4.44", "2.22"]  # the authors' time and force, not ours
+    assert lines[4].startswith("  mean+-SE   ") and "85.0 +- 1.00" in lines[4]
+    assert lines[5] == ("  break: wrist |F| at 15 Hz > 10 N; time to success (s), mean contact force (N): the "
+                        "authors' definitions; more: --all-columns")
+    assert len(lines) == 6 and max(len(line) for line in lines) <= 130
+    unbreakable = format_result({**_result(), "break_force_n": None}).splitlines()[-1]
+    assert unbreakable.startswith("  no break threshold;")
+    full = format_result(_result(), all_columns=True).splitlines()
+    for label in ("auth F-acc %", "break peak %", "break 15Hz %", "auth time (s)", "auth force (N)", "F-sel free %"):
+        assert label in full[1]
+    assert "7.77" in full[2] and "8.88" in full[2] and "4.44" in full[2]
+    assert "auth: the authors' definitions" in full[-1]
+
+
+def test_eval_cli_usage_error_is_short_and_all_columns_is_a_flag(tmp_path, capsys):
+    import eval as eval_cli
+
+    assert eval_cli.parse_args([str(tmp_path), "--all-columns"]).all_columns
+    assert not eval_cli.parse_args([str(tmp_path)]).all_columns
+    with pytest.raises(SystemExit):
+        eval_cli.parse_args([])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 2 and lines[0].startswith("usage: eval.py RUN_DIR") and lines[0].endswith("(see --help)")
+    assert lines[1] == "eval.py: error: give either a RUN_DIR or --baseline spiral|pose"
+
+
+def test_eval_cli_checks_its_output_paths_before_the_work_and_keeps_a_result_it_cannot_write(
+        tmp_path, monkeypatch, capsys):
+    """--json or --render where nothing can be written: one line before any work. A --json write that
+    fails anyway prints the results and saves them in the temp directory, named in the one-line error."""
+    import json
+    import tempfile
+
+    import eval as eval_cli
+
+    def no_work(args):
+        raise AssertionError("evaluated before checking the output paths")
+
+    monkeypatch.setattr(eval_cli, "evaluate_run_dir", no_work)
+    (tmp_path / "afile").write_text("")
+    blocked = tmp_path / "afile" / "out"
+    for flags, message in ((["--json", f"{blocked}.json"], f"error: --json {blocked}.json: {tmp_path / 'afile'} is a "
+                                                          "file, not a directory"),
+                           (["--json", str(tmp_path)], f"error: --json {tmp_path}: {tmp_path} is a directory"),
+                           (["--render", f"{blocked}.png"], f"error: --render {blocked}.png: {tmp_path / 'afile'} is")):
+        assert eval_cli.main([str(tmp_path / "run")] + flags) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(message), err
+    # the path passed the check, then the write failed: the results are printed and saved elsewhere
+    monkeypatch.setattr(eval_cli, "evaluate_run_dir", lambda args: {"success_rate": 0.5})
+    monkeypatch.setattr(eval_cli, "output_problems", lambda args: [])
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    assert eval_cli.main([str(tmp_path / "run"), "--json", f"{blocked}.json"]) == 1
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["success_rate"] == 0.5
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"error: cannot write --json {blocked}.json (")
+    fallback = pathlib.Path(err[0].rsplit(" saved to ", 1)[1])
+    assert fallback.parent == tmp_path and json.loads(fallback.read_text())["success_rate"] == 0.5

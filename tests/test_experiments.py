@@ -316,6 +316,15 @@ def test_early_training_reads_breaks_contact_and_free_space_force_selection():
     assert early["p_force_free_start"] == pytest.approx(0.06) and early["p_force_free"][1] == pytest.approx(0.02)
 
 
+def test_suite_usage_error_is_a_short_usage_line_then_the_error(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        experiments.parse_args(["--out", str(tmp_path), "--only", "nope"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == ["usage: python -m match_jax.experiments --out DIR [options] (see --help)",
+                     f"python -m match_jax.experiments: error: --only takes names from {list(experiments.SUITE)}, "
+                     "got 'nope'"]
+
+
 def test_an_interrupted_suite_says_how_to_continue(tmp_path, monkeypatch, capsys):
     """Ctrl-C or SIGTERM during training: one line naming the run directory and the way on, exit 130."""
     def interrupted(*args, **kwargs):

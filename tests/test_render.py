@@ -182,3 +182,47 @@ def test_video_format_needs_its_packages_and_render(env, tmp_path, monkeypatch, 
     assert "--video-format needs --render" in capsys.readouterr().err
     assert eval_cli.video_path(pathlib.Path("out/ep.png"), "gif") == pathlib.Path("out/ep.gif")
     assert eval_cli.video_path(pathlib.Path("out/ep.gif"), "gif") == pathlib.Path("out/ep_video.gif")
+
+
+def test_strip_steps_end_at_the_first_success():
+    """Evenly spaced from the reset to the state right after the first successful step; to the episode's end
+    when it never succeeds."""
+    states = {"success": np.array([0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1], np.float32), "done": np.zeros(12)}
+    steps = render.strip_steps(states, 6)
+    assert steps[0] == 0 and steps[-1] == 10 and len(steps) == 6
+    failed = {"success": np.zeros(12), "done": (np.arange(12) >= 7).astype(np.float32)}
+    assert render.strip_steps(failed, 3).tolist() == [0, 4, 8]
+    with pytest.raises(ValueError, match="frames"):
+        render.strip_steps(failed, 1)
+
+
+def test_run_title_names_method_and_task_not_the_machines_path(tmp_path):
+    """The strip's title of a run: its method, its task and its folder's name, never the absolute path."""
+    from match_jax.training import load_spec
+
+    spec = load_spec(REPO / "results" / "suite_authors" / "runs" / "match")
+    title = render.run_title(spec, REPO / "results" / "suite_authors" / "runs" / "match", 0, "best")
+    assert title == "MATCH, the authors' task: run 'match', seed index 0, best checkpoint"
+    assert str(REPO) not in title
+    spec = load_spec(REPO / "results" / "suite_authors" / "runs" / "pose_unbreakable")
+    assert render.run_title(spec, "runs/pose_unbreakable/", 2, "latest").startswith(
+        "Pose, the authors' task, unbreakable peg: run 'pose_unbreakable', seed index 2")
+
+
+def test_strip_has_a_row_per_view_and_its_title_above_the_captions(env, monkeypatch):
+    """Two views: two rows of frames, captions on the first; the title's box lies above every caption's."""
+    import matplotlib.pyplot as plt
+
+    monkeypatch.setattr(render, "render_frames", _uniform_frames)
+    states = _ending_states(env, steps=12, end=12)
+    fig = render.strip_figure(env, states, frames=6, title="MATCH, the authors' task: run 'match'")
+    try:
+        axes = fig.get_axes()
+        assert len(axes) == 2 * 6 and {ax.get_subplotspec().get_geometry()[:2] for ax in axes} == {(2, 6)}
+        assert [ax.get_ylabel() for ax in axes[::6]] == ["overview", "close-up from the side,\nhole see-through"]
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        title = fig._suptitle.get_window_extent(renderer)
+        assert all(title.y0 >= ax.title.get_window_extent(renderer).y1 for ax in axes[:6])
+    finally:
+        plt.close(fig)

@@ -9,9 +9,12 @@ import json
 import math
 import os
 import pathlib
+import re
+import signal
 import subprocess
 import sys
 import threading
+import time
 
 import jax
 import jax.numpy as jnp
@@ -24,8 +27,9 @@ from match_jax.envs import FPiHConfig
 from match_jax.envs.point_mass import PointMassConfig, PointMassEnv
 from match_jax.ppo import RuntimeValues, make_trainer
 from match_jax.presets import get_preset
-from match_jax.training import (Run, RunError, RunSpec, _CheckpointWriter, export_actors, load_policies, load_policy,
-                                read_metrics, train)
+from match_jax import training
+from match_jax.training import (Run, RunError, RunSpec, TrainingStopped, _CheckpointWriter, _StopSignals, export_actors,
+                                load_policies, load_policy, read_metrics, train)
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -178,10 +182,132 @@ def test_match_trains_through_the_runner_and_resumes_exactly(tmp_path, monkeypat
     monkeypatch.setattr(Run, "chunk", interrupted_chunk)
     capsys.readouterr()
     for run_spec, run_dir, resume, expected in ((spec, tmp_path / "fresh", False, "nothing to resume"),
-                                                (None, straight, True, "resume with --resume")):
+                                                (None, straight, True, "resume with: python train.py --resume")):
         with pytest.raises(KeyboardInterrupt):
             train(run_spec, run_dir, resume=resume, progress=False)
         assert expected in capsys.readouterr().out
+
+
+# The runner test's configuration: its compiled programs serve the tests below in the same process.
+TINY_2_SEEDS = RunSpec(ppo=get_preset("tiny", method="match", total_steps=4 * 32), num_seeds=2)
+
+
+def test_a_stop_signal_keeps_the_running_chunk_and_the_clock_adds_up(tmp_path, monkeypatch, capsys):
+    """SIGTERM while the first chunk runs: a notice at once, the chunk finishes, its rows and checkpoints
+    are written, then TrainingStopped with the resume line; the signal handlers are restored. A resume
+    continues the wall clock from the last row."""
+    real_chunk = Run.chunk
+
+    def chunk_under_sigterm(self, state):
+        os.kill(os.getpid(), signal.SIGTERM)  # Python runs the handler here, inside the chunk's call
+        return real_chunk(self, state)
+
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers are set in the main thread only")  # a SIGTERM here would end the process
+    handlers = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    monkeypatch.setattr(Run, "chunk", chunk_under_sigterm)
+    run_dir = tmp_path / "run"
+    with pytest.raises(KeyboardInterrupt) as stopped:
+        train(TINY_2_SEEDS, run_dir, progress=False)
+    assert isinstance(stopped.value, TrainingStopped)
+    assert stopped.value.summary["iterations"] == 1 and not stopped.value.summary["finished"]
+    assert (signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)) == handlers
+    assert [row["iteration"] for row in read_metrics(run_dir)] == [1, 1]
+    assert checkpoints.latest_step(checkpoints.latest_dir(run_dir)) == 1
+    assert checkpoints.read_best_record(run_dir, 1)["iteration"] == 1
+    captured = capsys.readouterr()
+    assert f"stopped after iteration 1, its metrics and checkpoint saved: resume with: python train.py --resume " \
+           f"--out {run_dir}" in captured.out
+    assert "SIGTERM: stopping once the running chunk is done and saved" in captured.err
+    # the resumed run's clock goes on from the last row's (set far ahead here to tell it from a restart)
+    monkeypatch.setattr(Run, "chunk", real_chunk)
+    rows = read_metrics(run_dir)
+    (run_dir / "metrics.jsonl").write_text("".join(json.dumps({**row, "wall_clock_s": 1000.0}) + "\n" for row in rows))
+    train(None, run_dir, resume=True, progress=False, max_chunks=1)
+    later = [row["wall_clock_s"] for row in read_metrics(run_dir) if row["iteration"] == 2]
+    assert len(later) == 2 and all(1000.0 < clock < 1000.0 + 600 for clock in later)
+
+
+def test_a_second_stop_signal_interrupts_at_once():
+    """The first signal only asks for a stop; a second raises KeyboardInterrupt (an impatient Ctrl-C)."""
+    said = []
+    stop = _StopSignals(said.append)
+    stop.handle(signal.SIGTERM, None)
+    assert stop.requested == signal.SIGTERM
+    with pytest.raises(KeyboardInterrupt):
+        stop.handle(signal.SIGINT, None)
+
+
+def test_progress_bar_shows_one_rate_without_the_compilation(tmp_path, capsys):
+    """The bar's only rate is env steps/s of all seeds over the chunks after the first (tqdm's own rate,
+    per seed and with the compilation, is off), with the time left at that rate."""
+    train(TINY_2_SEEDS, tmp_path / "run", progress=True, max_chunks=3)
+    updates = capsys.readouterr().err.replace("\r", "\n").splitlines()
+    assert not [line for line in updates if re.search(r"\d(step|it)/s|s/(step|it)", line)]
+    rated = [line for line in updates if "env steps/s" in line]
+    assert rated and all(re.search(r"success -|success \d+%", line) for line in rated)
+    assert re.search(r"[\d,]+ env steps/s, \d\d:\d\d left", rated[-1])
+    assert "96.0/128 env steps per seed" in rated[-1]
+    assert not any("env steps/s" in line for line in updates if "32.0/128" in line)  # one chunk: no rate yet
+
+
+def test_the_first_chunk_says_it_compiles_and_whether_the_cache_is_on(monkeypatch):
+    from types import SimpleNamespace
+
+    from match_jax import compile_cache
+
+    def run_with(compiled):
+        return SimpleNamespace(programs=SimpleNamespace(chunk=SimpleNamespace(_cache_size=lambda: compiled)))
+
+    assert training._compile_note(run_with(1)) is None  # compiled before in this process: nothing to say
+    note = training._compile_note(run_with(0))
+    assert note == f"compiling the first chunk (compilation cache on: {jax.config.jax_compilation_cache_dir})"
+    cache_dir = jax.config.jax_compilation_cache_dir
+    try:
+        jax.config.update("jax_compilation_cache_dir", None)
+        assert compile_cache.describe() == "compilation cache off"
+    finally:
+        jax.config.update("jax_compilation_cache_dir", cache_dir)
+
+
+@pytest.mark.slow
+def test_ctrl_c_while_train_py_compiles_keeps_the_first_chunk(tmp_path):
+    """train.py in a fresh process with the compilation cache off; Ctrl-C (SIGINT) once the bar says the
+    first chunk compiles: the notice, then that chunk saved (rows and checkpoint of iteration 1), the
+    resume line and exit status 130."""
+    out = tmp_path / "run"
+    env = dict(os.environ, PYTHONPATH=str(REPO), MATCH_JAX_COMPILATION_CACHE="0")
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    command = [sys.executable, "train.py", "--method", "match", "--preset", "tiny", "--total-steps", "128",
+               "--out", str(out)]
+    proc = subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    err = bytearray()
+
+    def read_stderr():  # the bar rewrites its line with \r: read byte by byte
+        while byte := proc.stderr.read(1):
+            err.extend(byte)
+
+    reader = threading.Thread(target=read_stderr)
+    reader.start()
+    deadline = time.time() + 300
+    while b"compiling the first chunk" not in err and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    assert b"compiling the first chunk (compilation cache off)" in err, err.decode()[-2000:]
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=600)
+    finally:
+        proc.kill()
+    reader.join(10)
+    stdout = proc.stdout.read()
+    text = err.decode()
+    assert proc.returncode == 130, text[-3000:]
+    assert "SIGINT: stopping once the running chunk is done and saved" in text
+    assert "Traceback" not in text
+    assert f"stopped after iteration 1, its metrics and checkpoint saved: resume with: python train.py --resume " \
+           f"--out {out}" in stdout.decode()
+    assert [row["iteration"] for row in read_metrics(out)] == [1]
+    assert checkpoints.latest_step(checkpoints.latest_dir(out)) == 1
 
 
 def test_quickstart_notebook_runs(tmp_path, monkeypatch):
@@ -221,6 +347,50 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         (tmp_path / "nockpt").mkdir()
         (tmp_path / "nockpt" / "config.json").write_text(RunSpec(ppo=get_preset("tiny")).to_json())
         train(None, tmp_path / "nockpt", resume=True)
+
+
+def test_cli_usage_errors_end_with_the_error_after_a_one_line_usage(tmp_path, capsys):
+    """A usage error prints one short usage line pointing to --help, then the error: not the usage of
+    every option."""
+    with pytest.raises(SystemExit) as exit_info:
+        train_cli.parse_args(["--method", "sac", "--out", str(tmp_path)])
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 2
+    assert lines[0].startswith("usage: train.py --method {pose,vices,hybrid,match} --out DIR") \
+        and lines[0].endswith("(see --help)")
+    assert lines[1].startswith("train.py: error: argument --method: invalid choice: 'sac'")
+
+
+def test_train_cli_checks_out_before_building_anything(tmp_path, monkeypatch, capsys):
+    """--out holding a run (say --resume), a file on the way, a place that takes no files: one line in
+    the command line's words, before the spec is built (nothing compiled). train() says the same in
+    Python's words."""
+    def no_work(args):
+        raise AssertionError("work began before --out was checked")
+
+    monkeypatch.setattr(train_cli, "build_spec", no_work)
+    held = tmp_path / "held"
+    checkpoints.save(checkpoints.latest_dir(held), 1, {"x": np.zeros(2, np.float32)})
+    (tmp_path / "afile").write_text("")
+    cases = [(held, f"error: --out {held} already holds a run: add --resume to continue it, or choose another --out"),
+             (tmp_path / "afile" / "run", f"run directory: {tmp_path / 'afile'} is a file, not a directory")]
+    if pathlib.Path("/proc/self").exists():
+        cases.append((pathlib.Path("/proc/x"), "error: --out /proc/x cannot be a run directory: cannot create files"))
+    for out, message in cases:
+        assert train_cli.main(["--method", "match", "--preset", "tiny", "--out", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err
+    assert train_cli.main(["--method", "match", "--out", str(tmp_path / "new"), "--tensorboard",
+                           str(tmp_path / "afile" / "tb")]) == 2
+    assert capsys.readouterr().err.strip() == (f"error: --tensorboard {tmp_path / 'afile' / 'tb'}: "
+                                               f"{tmp_path / 'afile'} is a file, not a directory")
+    monkeypatch.setattr(training, "Run", no_work)
+    with pytest.raises(RunError, match=r"already holds a run: continue it with resume=True") as held_error:
+        train(TINY_2_SEEDS, held)
+    assert "--resume" not in str(held_error.value)
+    with pytest.raises(RunError, match=r"cannot write the run directory .*afile/run: .*afile is a file, not a dir"):
+        train(TINY_2_SEEDS, tmp_path / "afile" / "run")
 
 
 def test_train_cli_tensorboard_equals_metrics_csv_across_a_resume(tmp_path):
@@ -272,6 +442,27 @@ def test_corrupted_checkpoint_is_a_clear_error(tmp_path, capsys):
     assert "unreadable" in message and "\n" not in message
     with pytest.raises(checkpoints.CheckpointError, match="no checkpoint found"):
         checkpoints.restore(tmp_path / "none", tree)
+
+
+def test_a_damaged_checkpoint_is_one_line_without_event_loop_tracebacks(tmp_path, monkeypatch):
+    """Truncated data files fail the restore while other reads are in flight; their "Event loop is
+    closed" reports (printed after the error, at random) are dropped, other unraisable reports are not."""
+    reported = []
+    monkeypatch.setattr(sys, "unraisablehook", reported.append)
+    tree = {f"x{i}": np.arange(2000.0 + i, dtype=np.float32) for i in range(8)}
+    checkpoints.save(tmp_path / "ck", 1, tree)
+    for path in (tmp_path / "ck" / "1").rglob("*"):
+        if path.is_file() and path.parent.name == "d":
+            path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    for _ in range(5):
+        with pytest.raises(checkpoints.CheckpointError, match="unreadable"):
+            checkpoints.restore(tmp_path / "ck", tree)
+    time.sleep(0.5)  # the reads still in flight complete
+    assert [str(r.exc_value) for r in reported] == []
+    other = RuntimeError("something else")
+    sys.unraisablehook(type("Unraisable", (), dict(exc_type=RuntimeError, exc_value=other, exc_traceback=None,
+                                                    err_msg=None, object=None))())
+    assert [r.exc_value for r in reported] == [other]
 
 
 @pytest.mark.slow
