@@ -103,6 +103,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="hole-position observation noise during training, mm (default 1, gaussian)")
     parser.add_argument("--break-force", type=float, default=None,
                         help="break threshold, N (default 10; inf = unbreakable)")
+    parser.add_argument("--contact-timeconst", type=float, default=None, metavar="S",
+                        help="solref time constant of every peg contact, s (default 0.02, the task's; larger is "
+                             "softer; docs/protocol.md#contact-stiffness-and-the-break-at-first-contact)")
     parser.add_argument("--task", choices=list(TASKS), default="authors",
                         help="task protocol: 'authors' (default: the authors' task, docs/protocol.md) or 'earlier' "
                              "(this project's earlier variant: rigid peg, peg contact force, peak break, damped "
@@ -179,6 +182,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         parser.error(f"--hole-noise-mm must be a finite number >= 0, got {args.hole_noise_mm}")
     if args.break_force is not None and not args.break_force > 0:
         parser.error(f"--break-force must be > 0 N, got {args.break_force}")
+    if args.contact_timeconst is not None and not (args.contact_timeconst > 0 and math.isfinite(args.contact_timeconst)):
+        parser.error(f"--contact-timeconst must be a finite number of seconds > 0, got {args.contact_timeconst}")
     if args.learning_rate is not None and not args.learning_rate > 0:
         parser.error(f"--learning-rate must be > 0, got {args.learning_rate}")
     end = args.learning_rate_end
@@ -261,6 +266,8 @@ def build_spec(args: argparse.Namespace):
         ("break_sampling", args.break_sampling), ("force_sensor", args.force_sensor),
         ("force_frame", args.force_frame), ("spawn_noise_type", args.spawn_noise)) if value is not None}
     overrides["physics_backend"] = args.physics_backend
+    if args.contact_timeconst is not None:
+        overrides["contact_timeconst"] = args.contact_timeconst
     if args.peg_offset_mm is not None:
         overrides["randomization"] = ModelRandomization(peg_offset_range=tuple(v / 1000.0 for v in args.peg_offset_mm))
     for name in ("hole_obs_noise", "break_force"):

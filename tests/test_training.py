@@ -636,3 +636,25 @@ def test_train_cli_network_flags(tmp_path, capsys):
         with pytest.raises(SystemExit):
             train_cli.parse_args(["--method", "match", flag, value, "--out", str(tmp_path)])
         assert message in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def test_train_cli_contact_timeconst_and_set(tmp_path, capsys):
+    """--contact-timeconst sets the task's peg-contact solref time constant (default the task's 0.02 s);
+    --set replaces learning settings by name after the other flags; bad values end in one line each,
+    before anything is built."""
+    default = train_cli.build_spec(train_cli.parse_args(["--method", "match", "--out", str(tmp_path)]))
+    assert default.env.contact_timeconst == 0.02
+    soft = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "match", "--contact-timeconst", "0.05", "--out", str(tmp_path)]))
+    assert soft.env == dataclasses.replace(default.env, contact_timeconst=0.05)
+    spec = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "match", "--learning-rate", "1e-5", "--set", "critic_steps=2", "value_loss=huber",
+         "--set", "network.head_scale=0.14", "--out", str(tmp_path)]))
+    assert (spec.ppo.learning_rate, spec.ppo.critic_steps, spec.ppo.value_loss) == (1e-5, 2, "huber")
+    assert spec.ppo.network == dataclasses.replace(default.ppo.network, head_scale=0.14)
+    for argv, message in ((["--contact-timeconst", "0"], "--contact-timeconst must be a finite number of seconds > 0"),
+                          (["--set", "critic_steps=x"], "--set critic_steps: expected an integer, got 'x'"),
+                          (["--set", "kl_threshold=-1"], "kl_threshold must be a finite number > 0 or None")):
+        with pytest.raises(SystemExit):
+            train_cli.parse_args(["--method", "match", *argv, "--out", str(tmp_path)])
+        assert message in capsys.readouterr().err.strip().splitlines()[-1]

@@ -78,6 +78,10 @@ class FPiHConfig:
     # of the policy step (what a real peg feels).
     break_force: float = 10.0
     break_sampling: str = "policy_step"
+    # Contact softness: the solref time constant (s) of every peg contact pair, written into the model
+    # before it goes to MJX (the scene's value, make_scene.py `solref="0.02 1"`, keeps the model as built;
+    # larger is softer; MuJoCo raises values below 2 x the physics timestep to that).
+    contact_timeconst: float = 0.02
     # Per-episode model draws (the peg's pose in the hand; with dynamics ranges, the peg's mass and
     # friction and the controller gains: all shown to the critic only).
     randomization: ModelRandomization = ModelRandomization()
@@ -137,6 +141,8 @@ class FPiHConfig:
             raise ValueError(f"spawn_noise must be 3 non-negative numbers, got {self.spawn_noise!r}")
         if not self.control_dt > 0:
             raise ValueError(f"control_dt must be > 0 s, got {self.control_dt!r}")
+        if not (isinstance(self.contact_timeconst, (int, float)) and 0 < self.contact_timeconst < math.inf):
+            raise ValueError(f"contact_timeconst must be a finite number > 0 s, got {self.contact_timeconst!r}")
 
     @property
     def policy_dt(self) -> float:
@@ -197,6 +203,7 @@ class FPiHEnv(BraxEnv):
         self.action_space: ActionSpace = get_action_space(config.control)
         self.mj_model = sim.load_model(config.physics_substeps, config.control_dt, config.scene_file or None,
                                        config.physics_backend)
+        self.mj_model.pair_solref[:, 0] = config.contact_timeconst  # every pair is a peg pair
         self.ids = sim.SceneIds(self.mj_model)
         self.mjx_model = sim.put_model(self.mj_model, config.physics_backend)
         self.wrist = sensors.WristSensor(self.mj_model)
