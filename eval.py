@@ -107,8 +107,8 @@ def format_table(summary: dict) -> str:
 
 def evaluate_run_dir(args) -> dict:
     """Evaluate a run at one noise level or over a sweep; returns the JSON document."""
-    from match_jax.evaluation import evaluate_run_grid, format_result
-    from match_jax.training import load_spec
+    from match_jax.training.evaluation import evaluate_run_grid, format_result
+    from match_jax.training.runs import load_spec
 
     load_spec(args.run_dir)  # a one-line RunError unless it is a run directory
     break_force = math.inf if args.unbreakable else args.break_force
@@ -145,11 +145,12 @@ def render_episode(args) -> None:
     args.render, the video beside it (`video_path`)."""
     import jax
 
-    from match_jax import baselines, render
+    from match_jax.envs import baselines
+    from match_jax.training import render
 
     if args.run_dir is not None:
-        from match_jax.ppo import deterministic_policy
-        from match_jax.training import load_policy
+        from match_jax.rl.ppo import deterministic_policy
+        from match_jax.training.runs import load_policy
 
         run, policy_params = load_policy(args.run_dir, 0, args.checkpoint, args.physics_backend)
         env = run.env
@@ -157,7 +158,7 @@ def render_episode(args) -> None:
         policy_state = (policy_params["params"], policy_params["policy_stats"])
         title = render.run_title(run.spec, args.run_dir, 0, args.checkpoint)
     else:
-        from match_jax.evaluation import baseline_env
+        from match_jax.training.evaluation import baseline_env
 
         noise_mm = 1.0 if args.noise_mm is None else args.noise_mm
         env = baseline_env(args.baseline, noise_mm / 1000.0, args.noise_type or "gaussian",
@@ -221,7 +222,7 @@ def main(argv=None) -> int:
     compile_cache.enable()
     if args.render:
         choose_gl_backend()
-        from match_jax.render import VIDEO_INSTALL, missing_video_packages
+        from match_jax.training.render import VIDEO_INSTALL, missing_video_packages
 
         missing = missing_video_packages(args.video_format)
         if missing:
@@ -230,8 +231,8 @@ def main(argv=None) -> int:
             return 2
     start = time.time()
     if args.run_dir is not None:
-        from match_jax.checkpoints import CheckpointError
-        from match_jax.training import RunError
+        from match_jax.training.checkpoints import CheckpointError
+        from match_jax.training.runs import RunError
         try:
             summary = evaluate_run_dir(args)
         except (RunError, CheckpointError) as err:
@@ -239,7 +240,7 @@ def main(argv=None) -> int:
             return 2
     else:
         noise_mm = 1.0 if args.noise_mm is None else args.noise_mm
-        from match_jax.evaluation import evaluate_baseline
+        from match_jax.training.evaluation import evaluate_baseline
 
         summary = evaluate_baseline(args.baseline, args.episodes, noise_mm / 1000.0, args.noise_type or "gaussian",
                                     math.inf if args.unbreakable else args.break_force, args.seed, args.batch)

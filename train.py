@@ -31,7 +31,7 @@ RESUME_FLAGS = ("resume", "out", "total_steps", "max_chunks", "time_budget_min",
 
 
 TASKS = ("authors", "earlier")  # match_jax.envs.tasks.TASKS
-DYNAMICS = ("stable", "authors")  # match_jax.randomization.DYNAMICS_PRESETS
+DYNAMICS = ("stable", "authors")  # match_jax.envs.randomization.DYNAMICS_PRESETS
 
 
 def _three_floats(text: str) -> tuple[float, float, float]:
@@ -163,7 +163,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "cannot change it (only --total-steps, --max-chunks, --time-budget-min, --no-progress, "
                          "--tensorboard)")
     if args.physics_backend == "warp":
-        from match_jax import sim
+        from match_jax.envs import sim
 
         if not sim.warp_installed():
             parser.error(f"--physics-backend warp {sim.WARP_MISSING}")
@@ -200,7 +200,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         if value is not None and not 0 <= value <= 1:
             parser.error(f"--{name.replace('_', '-')} must be in [0, 1], got {value}")
     if args.initial_log_std is not None:
-        from match_jax.networks import NetworkConfig
+        from match_jax.rl.networks import NetworkConfig
         low, high = NetworkConfig.min_log_std, NetworkConfig.max_log_std
         if not low < args.initial_log_std < high:
             parser.error(f"--initial-log-std must be in ({low:g}, {high:g}) (the actor's log-std bounds), "
@@ -208,7 +208,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.initial_p_position is not None and not 0 < args.initial_p_position < 1:
         parser.error(f"--initial-p-position must be in (0, 1), got {args.initial_p_position}")
     if args.initial_force_z is not None:
-        from match_jax.controllers.action_spaces import ActionConfig
+        from match_jax.envs.controllers.action_spaces import ActionConfig
         low, high = ActionConfig().force_z_range
         if not low <= args.initial_force_z <= high:
             parser.error(f"--initial-force-z must be in [{low:g}, {high:g}] N (the force-z action range), "
@@ -225,8 +225,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def _learner(args: argparse.Namespace):
     """The PPOConfig the flags ask for: the preset, the flags that replace its fields, then --set."""
-    from match_jax.overrides import apply_overrides
-    from match_jax.presets import get_preset
+    from match_jax.training.overrides import apply_overrides
+    from match_jax.training.presets import get_preset
 
     overrides = {"method": args.method}
     for name in ("total_steps", "num_envs", "learning_rate", "learning_rate_end", "desired_kl", "gamma", "gae_lambda",
@@ -253,8 +253,8 @@ def _learner(args: argparse.Namespace):
 def build_spec(args: argparse.Namespace):
     from match_jax.envs import FPiHConfig
     from match_jax.envs.tasks import task_config
-    from match_jax.randomization import DYNAMICS_PRESETS, ModelRandomization
-    from match_jax.training import RunSpec
+    from match_jax.envs.randomization import DYNAMICS_PRESETS, ModelRandomization
+    from match_jax.training.runs import RunSpec
 
     ppo = _learner(args)
     env = FPiHConfig(control=ppo.control)
@@ -291,9 +291,9 @@ def main(argv=None) -> int:
     from match_jax import compile_cache
 
     compile_cache.enable()
-    from match_jax.checkpoints import CheckpointError
+    from match_jax.training.checkpoints import CheckpointError
     from match_jax.cli import unwritable
-    from match_jax.training import RunError, holds_run, train
+    from match_jax.training.runs import RunError, holds_run, train
 
     # the run directory, before anything is built or compiled
     if not args.resume and holds_run(args.out):
@@ -310,7 +310,7 @@ def main(argv=None) -> int:
         return 2
     logger = None
     if args.tensorboard is not None:
-        from match_jax.tb_logging import TensorBoardLogger, TensorBoardUnavailable
+        from match_jax.training.tb_logging import TensorBoardLogger, TensorBoardUnavailable
         try:
             logger = TensorBoardLogger(args.out / "tensorboard" if args.tensorboard is True else args.tensorboard)
         except TensorBoardUnavailable as err:

@@ -22,7 +22,7 @@ Speed at equal contact load (both policies kept at their initialisation, which t
 
 What runs, in ONE process, on `FPiHEnv(FPiHConfig(control="pose"))` (150-step episodes):
 
-- ours: `match_jax.training.Run` on `get_preset("cpu", method="pose", num_envs=N, total_steps=S,
+- ours: `match_jax.training.runs.Run` on `get_preset("cpu", method="pose", num_envs=N, total_steps=S,
   iterations_per_chunk=K)`: rollouts of 150 steps per env per iteration, GAE, 4 epochs x 8
   minibatches, SimBa actor (1 x 128) and asymmetric critic (2 x 128), our `AutoResetEnv`.
 - brax: `brax.training.agents.ppo.train` with the same number of envs, `unroll_length=150`,
@@ -39,7 +39,7 @@ per-step 0/1 `success` in `state.metrics`; Brax's evaluator and training-metrics
 over the episode (`eval/episode_success` is the mean number of success steps per episode), which is
 not an episode success rate. So at step 0 and after every K iterations each trainer's current policy
 is run deterministically (Brax: `make_policy(params, deterministic=True)`, i.e. tanh of the mean; ours:
-`deterministic_policy`, the same) with `match_jax.evaluation.make_rollout` on the raw env for
+`deterministic_policy`, the same) with `match_jax.training.evaluation.make_rollout` on the raw env for
 `--eval-episodes` episodes from the SAME reset keys, and `episode_metrics` gives success (success
 before any break) and break rates. For Brax this runs in `policy_params_fn`, which Brax calls at
 step 0 and after every training epoch, outside its timed region; Brax's own evaluator is switched
@@ -150,8 +150,8 @@ from match_jax.envs import FPiHConfig, FPiHEnv  # noqa: E402  (before brax.envs:
 from brax.envs.base import State, Wrapper  # noqa: E402
 from brax.envs.wrappers import training as brax_wrappers  # noqa: E402
 
-from match_jax.evaluation import episode_metrics, make_rollout  # noqa: E402
-from match_jax.presets import get_preset  # noqa: E402
+from match_jax.training.evaluation import episode_metrics, make_rollout  # noqa: E402
+from match_jax.training.presets import get_preset  # noqa: E402
 
 
 def _patch_zero_size_orthogonal() -> bool:
@@ -265,7 +265,7 @@ def make_evaluator(env: FPiHEnv, policies_from_params, keys: jax.Array):
     """params -> {'success_rate', 'break_rate', 'contact_rate', 'explore_contact_rate'} over len(keys)
     episodes of the raw env.
 
-    `policies_from_params(params)` returns (deterministic, stochastic) match_jax.evaluation policies;
+    `policies_from_params(params)` returns (deterministic, stochastic) match_jax.training.evaluation policies;
     success, break and contact rates are the deterministic policy's, `explore_contact_rate` the
     stochastic one's on the same episodes. params is a jit argument, so this compiles once per trainer.
     """
@@ -315,8 +315,8 @@ def steady_rate(intervals: list[dict]) -> tuple[float | None, int]:
 
 # -------------------------------------------------------------------------------------- trainers
 def run_ours(ppo, env_config: FPiHConfig, seed: int, evaluator_keys, eval_env, log) -> dict:
-    from match_jax.ppo import deterministic_policy
-    from match_jax.training import Run, RunSpec, shard_envs
+    from match_jax.rl.ppo import deterministic_policy
+    from match_jax.training.runs import Run, RunSpec, shard_envs
 
     start = time.perf_counter()
     run = Run(RunSpec(ppo=ppo, env=env_config, num_seeds=1, seed=seed, preset="cpu"),

@@ -17,7 +17,7 @@ import pathlib
 
 import numpy as np
 
-SHELL_EDGES_MM = (0.0, 1.0, 2.5, 5.0, 7.5)  # as match_jax.evaluation.SHELL_EDGES_MM
+SHELL_EDGES_MM = (0.0, 1.0, 2.5, 5.0, 7.5)  # as match_jax.training.evaluation.SHELL_EDGES_MM
 
 
 def lateral_error_mm(kind: str, level: float, peg_offset: bool, n: int, rng) -> np.ndarray:

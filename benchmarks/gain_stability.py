@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.randomization import AUTHORS_DYNAMICS
+from match_jax.envs.randomization import AUTHORS_DYNAMICS
 
 
 def hold(env: FPiHEnv, rot_stiffness: list[float], envs: int, steps: int) -> list[dict]:

@@ -66,7 +66,7 @@ TRAIN_S=$(( $(date +%s) - TRAIN_START ))
 mkdir -p "$OUT/paper"
 python - "$RUN" "$OUT" "$DEVICES" "$BACKEND" "$TRAIN_S" <<'EOF' 2>&1 | tee -a "$OUT/logs/steps.log"
 import json, pathlib, sys
-from match_jax.training import export_actors, read_metrics
+from match_jax.training.runs import export_actors, read_metrics
 run, out, devices, backend, train_s = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2]), sys.argv[3], sys.argv[4], int(sys.argv[5])
 summary = {"devices": devices, "backend": backend, "train_process_s": train_s}
 rows = read_metrics(run) if (run / "config.json").exists() else []

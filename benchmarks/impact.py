@@ -62,8 +62,8 @@ import numpy as np
 
 from match_jax import compile_cache
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.ppo import deterministic_policy
-from match_jax.training import batch_mesh, load_policy, shard_batch
+from match_jax.rl.ppo import deterministic_policy
+from match_jax.training.runs import batch_mesh, load_policy, shard_batch
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 BREAK_N = 10.0

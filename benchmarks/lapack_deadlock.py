@@ -23,9 +23,9 @@ REPO = pathlib.Path(__file__).resolve().parents[1]
 CHILD = """
 import match_jax, jax
 jax.lax.map = lambda f, xs, **kw: jax.vmap(f)(xs)
-from match_jax.ppo import make_trainer
-from match_jax.presets import get_preset
-from match_jax.training import make_env
+from match_jax.rl.ppo import make_trainer
+from match_jax.training.presets import get_preset
+from match_jax.training.runs import make_env
 ppo = get_preset('cpu', method='match')
 trainer = make_trainer(ppo, make_env(ppo))
 jax.block_until_ready(jax.jit(trainer.init)(jax.random.split(jax.random.PRNGKey(0), 3)))

@@ -29,9 +29,9 @@ import pathlib
 
 import numpy as np
 
-from match_jax.claims import steps_to
-from match_jax.experiments import episode_window, metric_arrays
-from match_jax.training import load_spec, read_metrics
+from match_jax.experiments.claims import steps_to
+from match_jax.experiments.pipeline import episode_window, metric_arrays
+from match_jax.training.runs import load_spec, read_metrics
 
 THRESHOLDS = (0.5, 0.8, 0.9)
 READ_AT = (250_000, 500_000, 1_000_000)

@@ -21,10 +21,10 @@ import pathlib
 import match_jax  # noqa: F401  (fast XLA CPU flag before JAX starts)
 
 
-from match_jax.controllers import ControllerConfig
+from match_jax.envs.controllers import ControllerConfig
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.probes import press_down, static_compliance
-from match_jax.randomization import ModelRandomization
+from match_jax.envs.probes import press_down, static_compliance
+from match_jax.envs.randomization import ModelRandomization
 
 QUIET = dict(hole_xy_range=0.0, hole_yaw_range=0.0, spawn_noise=(0.0, 0.0, 0.0), hand_yaw_range=0.0,
              hole_obs_noise=0.0, force_obs_noise=0.0, torque_obs_noise=0.0, ee_pos_obs_noise=0.0,

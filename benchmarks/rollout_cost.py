@@ -33,11 +33,11 @@ import jax.numpy as jnp
 import numpy as np
 from brax.training.acme import running_statistics, specs
 
-from match_jax.distributions import make_distribution
+from match_jax.rl.distributions import make_distribution
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
-from match_jax.networks import Actor
-from match_jax.presets import get_preset
-from match_jax.sim import mjx
+from match_jax.rl.networks import Actor
+from match_jax.training.presets import get_preset
+from match_jax.envs.sim import mjx
 from throughput import _timed  # benchmarks/ is on sys.path when this script runs
 
 

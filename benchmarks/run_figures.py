@@ -10,8 +10,8 @@ import sys
 
 import numpy as np
 
-from match_jax import plots
-from match_jax.training import read_metrics
+from match_jax.experiments import plots
+from match_jax.training.runs import read_metrics
 
 run_dir, out = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
 label = sys.argv[3] if len(sys.argv) > 3 else "MATCH"

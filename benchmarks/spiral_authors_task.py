@@ -16,8 +16,9 @@ import pathlib
 
 import match_jax  # noqa: F401  (fast XLA CPU flag)
 
-from match_jax import compile_cache, evaluation
-from match_jax.randomization import ModelRandomization
+from match_jax import compile_cache
+from match_jax.training import evaluation
+from match_jax.envs.randomization import ModelRandomization
 
 GRASPS = {"peg offset": {}, "rigid": {"randomization": ModelRandomization(peg_offset_range=(0.0, 0.0, 0.0))}}
 

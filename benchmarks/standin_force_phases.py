@@ -17,7 +17,7 @@ import pathlib
 
 import numpy as np
 
-from match_jax import standin
+from match_jax.transfer import standin
 
 
 _DEFAULT = standin.StandInConfig()

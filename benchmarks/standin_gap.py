@@ -14,7 +14,7 @@ import json
 import pathlib
 import time
 
-from match_jax.standin import Perturbation, StandInConfig, run_trials
+from match_jax.transfer.standin import Perturbation, StandInConfig, run_trials
 
 DEFAULT = StandInConfig()
 CONFIGS = {
@@ -34,7 +34,7 @@ CONFIGS = {
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("policy", type=pathlib.Path, help="ONNX file written by match_jax.export")
+    parser.add_argument("policy", type=pathlib.Path, help="ONNX file written by match_jax.transfer.export")
     parser.add_argument("--trials", type=int, default=30)
     parser.add_argument("--noise-mm", type=float, default=0.0)
     parser.add_argument("--out", type=pathlib.Path, required=True)

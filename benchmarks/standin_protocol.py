@@ -1,4 +1,4 @@
-"""The paper's real-robot protocol on the MuJoCo C stand-in (`match_jax.standin`), for exported policies.
+"""The paper's real-robot protocol on the MuJoCo C stand-in (`match_jax.transfer.standin`), for exported policies.
 
 Per method: N noiseless trials of every seed's policy, then the seed with the most noiseless successes
 (ties: fewer breaks) at each noise shell with M trials. Deployment as the paper's robot: Pose and
@@ -12,7 +12,7 @@ Resumable: levels already in OUT are kept (a method's deployment cannot change o
     python benchmarks/standin_protocol.py --policies pose=DIR,match=DIR --noiseless-trials 30 --shell-trials 50 \
         --out results/transfer/standin.json [--no-perturbation]
 
-DIR holds policy_seed<i>.onnx + .json (`python -m match_jax.export RUN_DIR DIR --seed-index i`, with
+DIR holds policy_seed<i>.onnx + .json (`python -m match_jax.transfer.export RUN_DIR DIR --seed-index i`, with
 `--stochastic` for a sampled method).
 """
 
@@ -23,7 +23,7 @@ import json
 import pathlib
 import time
 
-from match_jax.standin import Perturbation, StandInConfig, run_trials
+from match_jax.transfer.standin import Perturbation, StandInConfig, run_trials
 
 SHELLS_MM = (1.0, 2.5, 5.0, 7.5)
 STOCHASTIC_METHODS = ("pose", "hybrid")  # the paper's robot ran these with the std scaled to 5 %

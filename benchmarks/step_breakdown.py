@@ -32,10 +32,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from match_jax import sim
-from match_jax.controllers.osc import hybrid_torque
+from match_jax.envs import sim
+from match_jax.envs.controllers.osc import hybrid_torque
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.sim import mjx
+from match_jax.envs.sim import mjx
 
 
 def timed_rounds(calls: dict, rounds: int) -> dict:

@@ -28,8 +28,8 @@ import jax
 import jax.numpy as jnp
 
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.randomization import ModelRandomization
-from match_jax.training import batch_mesh, shard_batch
+from match_jax.envs.randomization import ModelRandomization
+from match_jax.training.runs import batch_mesh, shard_batch
 
 RIGID = ModelRandomization(peg_offset_range=(0.0, 0.0, 0.0))
 VARIANTS = {
@@ -68,8 +68,8 @@ def env_rate(overrides: dict, batch: int, repeats: int) -> dict:
 
 def training_rate(overrides: dict, iterations: int) -> dict:
     """Env steps/s of whole PPO iterations (MATCH, cpu preset sizes, one seed), after compilation."""
-    from match_jax.ppo import make_trainer
-    from match_jax.presets import get_preset
+    from match_jax.rl.ppo import make_trainer
+    from match_jax.training.presets import get_preset
 
     ppo = get_preset("cpu", method="match", iterations_per_chunk=iterations)
     env = FPiHEnv(dataclasses.replace(FPiHConfig(control="hybrid"), **overrides))

@@ -50,8 +50,8 @@ import numpy as np
 from mujoco import rollout
 
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.sim import mjx
-from match_jax.training import batch_mesh, shard_batch
+from match_jax.envs.sim import mjx
+from match_jax.training.runs import batch_mesh, shard_batch
 
 
 def _timed(fn, state, repeats):
@@ -125,8 +125,8 @@ def benchmark_training(presets, method: str, chunks: int, seeds: int = 1, miniba
     """Training env steps/s (all `seeds` together) at each preset and minibatch count (None: the preset's),
     and the bare env at the same total batch."""
     from match_jax.envs import AutoResetEnv
-    from match_jax.presets import get_preset
-    from match_jax.training import Run, RunSpec, shard_envs
+    from match_jax.training.presets import get_preset
+    from match_jax.training.runs import Run, RunSpec, shard_envs
 
     results = {"method": method, "device": str(jax.devices()[0]), "cpu_count": os.cpu_count(),
                "host_devices": len(jax.devices()), "seeds": seeds, "rows": []}
@@ -183,7 +183,7 @@ def main() -> None:
         compare_host_devices(parser, args)
         return
     if args.training:
-        from match_jax.presets import PRESETS
+        from match_jax.training.presets import PRESETS
         presets = [p for p in args.training.split(",") if p]
         unknown = [p for p in presets if p not in PRESETS]
         if unknown or args.chunks < 1 or args.seeds < 1:

@@ -33,7 +33,7 @@ for method in $methods; do
   case $method in pose|hybrid) stochastic=(--stochastic --std-scale 0.05) ;; esac
   for seed in 0 1 2; do
     [ -f "$dir/onnx/policy_seed$seed.onnx" ] || \
-      python -m match_jax.export "$dir" "$dir/onnx" --seed-index "$seed" "${stochastic[@]}"
+      python -m match_jax.transfer.export "$dir" "$dir/onnx" --seed-index "$seed" "${stochastic[@]}"
   done
   # The stand-in (MuJoCo C, one core) runs beside the simulator evaluation.
   python benchmarks/standin_protocol.py --policies "$method=$dir/onnx" --out "$out/standin.json" &
@@ -42,7 +42,7 @@ for method in $methods; do
     --json "$out/sim/$method.json"
   wait "$standin"
   sims+=("$method=$out/sim/$method.json")
-  python -m match_jax.transfer_report "$out/standin.json" --sim "$(join "${sims[@]}")" --out "$out"
+  python -m match_jax.transfer.report "$out/standin.json" --sim "$(join "${sims[@]}")" --out "$out"
   echo "[transfer_runs] $method trained, exported, evaluated and run on the stand-in at $(date -u +%FT%TZ)"
 done
 echo "[transfer_runs] report written at $(date -u +%FT%TZ)"

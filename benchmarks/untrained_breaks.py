@@ -27,10 +27,10 @@ import jax
 import numpy as np
 
 from match_jax.envs.tasks import task_config
-from match_jax.evaluation import make_rollout
-from match_jax.ppo import make_trainer
-from match_jax.training import make_env
-from match_jax.presets import get_preset
+from match_jax.training.evaluation import make_rollout
+from match_jax.rl.ppo import make_trainer
+from match_jax.training.runs import make_env
+from match_jax.training.presets import get_preset
 
 EARLIER_FORCE_Z = -1.0  # N: the cpu preset's untrained force-z target when this was measured (0 N now)
 SETTINGS = {

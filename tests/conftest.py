@@ -13,10 +13,10 @@ import tempfile
 import jax
 import pytest
 
-from match_jax.controllers import ControllerConfig
+from match_jax.envs.controllers import ControllerConfig
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.probes import press_down
-from match_jax.randomization import ModelRandomization
+from match_jax.envs.probes import press_down
+from match_jax.envs.randomization import ModelRandomization
 
 # Identical programs compiled by separate Run objects (train -> resume -> train) come from the cache.
 jax.config.update("jax_compilation_cache_dir", str(pathlib.Path(tempfile.gettempdir()) / "match_jax_test_jit_cache"))

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from conftest import QUIET
-from match_jax import randomization, sim
+from match_jax.envs import randomization, sim
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.randomization import ARM_MODEL_ERROR, ModelRandomization
-from match_jax.sim import mjx
-from match_jax.training import RunSpec
+from match_jax.envs.randomization import ARM_MODEL_ERROR, ModelRandomization
+from match_jax.envs.sim import mjx
+from match_jax.training.runs import RunSpec
 
 import train
 

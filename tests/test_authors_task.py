@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from conftest import QUIET
-from match_jax import randomization, sensors
+from match_jax.envs import randomization, sensors
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
 from match_jax.envs.point_mass import PointMassConfig, PointMassEnv
-from match_jax.evaluation import (SHELL_EDGES_MM, authors_rates, episode_metrics, shell_inner_mm, shell_offsets,
+from match_jax.training.evaluation import (SHELL_EDGES_MM, authors_rates, episode_metrics, shell_inner_mm, shell_offsets,
                                   summarize)
-from match_jax.randomization import ModelRandomization
-from match_jax.training import RunSpec
+from match_jax.envs.randomization import ModelRandomization
+from match_jax.training.runs import RunSpec
 
 SPREAD = {k: v for k, v in QUIET.items() if k != "randomization"}  # quiet, but the grasp is drawn per episode
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from match_jax.evaluation import evaluate_baseline
+from match_jax.training.evaluation import evaluate_baseline
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from match_jax import claims
+from match_jax.experiments import claims
 
 
 def test_ci95_halfwidth_is_the_t_interval():
@@ -100,7 +100,7 @@ def test_check_claims_reads_the_right_runs_and_metrics():
 
 def test_suite_claims_read_the_mean_force_of_the_task_protocol():
     """The force claim compares the authors' mean force on their task and ours on the earlier variant."""
-    from match_jax import report
+    from match_jax.experiments import report
 
     def grid(ours, authors):
         seeds = [{"mean_force_n": f, "authors_mean_force_n": g} for f, g in zip(ours, authors)]
@@ -212,7 +212,7 @@ _PROFILE_TEXTS = ("MATCH hardly selects force in the approach (P(force) below 5 
 def test_suite_claims_pool_the_profile_and_average_the_shells():
     """report.suite_claims: the selection profile is pooled over time bins weighted by their steps; the
     shell break metric is the per-seed mean over the four shells."""
-    from match_jax import report
+    from match_jax.experiments import report
     profile = {"mean": [[[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]], [[0.0, 0.0, 0.5]] * 2, [[0.0, 0.0, 0.1]] * 2],
                "count": [[3, 1], [2, 2], [1, 1]]}
     pooled = report.pooled_profile(profile)

@@ -7,8 +7,8 @@ import pytest
 from match_jax.envs import FPiHConfig, FPiHEnv
 from match_jax.envs.contract import INFO_KEYS, check_env
 from match_jax.envs.point_mass import PointMassEnv
-from match_jax.ppo import make_trainer
-from match_jax.presets import get_preset
+from match_jax.rl.ppo import make_trainer
+from match_jax.training.presets import get_preset
 
 
 def test_point_mass_and_fpih_satisfy_the_contract():

@@ -4,7 +4,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from match_jax.controllers import ArmDynamics, ControllerConfig, ControlTarget, hybrid_torque
+from match_jax.envs.controllers import ArmDynamics, ControllerConfig, ControlTarget, hybrid_torque
 
 
 def _c_dynamics(env, data, ee_force=np.zeros(3)):
@@ -193,7 +193,7 @@ def test_controller_config_rejects_bad_values():
 
 
 def test_action_config_force_z_and_its_inverse():
-    from match_jax.controllers import ActionConfig
+    from match_jax.envs.controllers import ActionConfig
 
     actions = ActionConfig()
     for a in (-1.0, -0.3, 0.0, 1.0):

@@ -9,9 +9,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from match_jax import distributions as D
-from match_jax.networks import Actor, NetworkConfig
-from match_jax.ppo import selection_loss
+from match_jax.rl import distributions as D
+from match_jax.rl.networks import Actor, NetworkConfig
+from match_jax.rl.ppo import selection_loss
 
 
 def _normal_cdf(x):
@@ -171,7 +171,7 @@ def test_unknown_method_is_named():
 
 def test_untrained_hybrid_policy_commands_a_gentle_force():
     from match_jax.envs import FPiHConfig
-    from match_jax.ppo import PPOConfig, initial_mean_bias
+    from match_jax.rl.ppo import PPOConfig, initial_mean_bias
 
     class _Env:  # only the action scaling is read
         config = FPiHConfig()

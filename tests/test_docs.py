@@ -20,8 +20,8 @@ def anchors(path: pathlib.Path) -> set[str]:
 
 def test_github_anchor_matches_githubs_rule():
     assert github_anchor("Training on the authors' task") == "training-on-the-authors-task"
-    assert github_anchor("Measured stiffness and motion (`match_jax.probes.static_compliance`, tests)") == \
-        "measured-stiffness-and-motion-match_jaxprobesstatic_compliance-tests"
+    assert github_anchor("Measured stiffness and motion (`match_jax.envs.probes.static_compliance`, tests)") == \
+        "measured-stiffness-and-motion-match_jaxenvsprobesstatic_compliance-tests"
 
 
 def test_relative_links_and_anchors_resolve():

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from conftest import QUIET
-from match_jax.controllers import ControllerConfig, ControlTarget, hybrid_torque
+from match_jax.envs.controllers import ControllerConfig, ControlTarget, hybrid_torque
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.randomization import AUTHORS_DYNAMICS, DYNAMICS_PRESETS, STABLE_ROT_STIFFNESS, ModelRandomization
-from match_jax.training import RunSpec
+from match_jax.envs.randomization import AUTHORS_DYNAMICS, DYNAMICS_PRESETS, STABLE_ROT_STIFFNESS, ModelRandomization
+from match_jax.training.runs import RunSpec
 
 import train
 from test_controllers import _c_dynamics, _home

@@ -6,7 +6,7 @@ import pathlib
 import numpy as np
 import pytest
 
-from match_jax.evaluation import apply_break_threshold, episode_metrics, summarize
+from match_jax.training.evaluation import apply_break_threshold, episode_metrics, summarize
 
 T, DT = 6, 1.0 / 15.0
 
@@ -116,7 +116,7 @@ def test_success_after_break_does_not_count():
 
 
 def test_selection_profile_segments_and_normalises_phases():
-    from match_jax.analysis import contact_selection_rates, selection_profile
+    from match_jax.training.analysis import contact_selection_rates, selection_profile
 
     T = 8
     phase = np.array([[0, 0, 1, 1, 1, 1, 2, 2], [0, 0, 0, 0, 1, 1, 1, 1]]).T  # (T, 2)
@@ -142,7 +142,7 @@ def test_selection_profile_segments_and_normalises_phases():
 
 
 def test_break_threshold_from_an_unbreakable_rollout():
-    from match_jax.evaluation import apply_break_threshold
+    from match_jax.training.evaluation import apply_break_threshold
 
     traj = _traj(2)
     traj["done"] = np.zeros((T, 2))
@@ -169,11 +169,11 @@ def test_runs_differing_in_break_force_noise_or_ssl_share_one_evaluation_program
     import dataclasses
     import math
 
-    from match_jax.distributions import make_distribution
+    from match_jax.rl.distributions import make_distribution
     from match_jax.envs import FPiHConfig
-    from match_jax.evaluation import _grid_rollout, evaluation_config
-    from match_jax.networks import NetworkConfig
-    from match_jax.ppo import PPOConfig
+    from match_jax.training.evaluation import _grid_rollout, evaluation_config
+    from match_jax.rl.networks import NetworkConfig
+    from match_jax.rl.ppo import PPOConfig
 
     hybrid = FPiHConfig(control="hybrid")
     match = evaluation_config(PPOConfig(method="match"), hybrid)
@@ -194,7 +194,7 @@ def test_runs_differing_in_break_force_noise_or_ssl_share_one_evaluation_program
 
 
 def _result(hybrid=True):
-    from match_jax.evaluation import AXIS_COLUMNS, COLUMNS
+    from match_jax.training.evaluation import AXIS_COLUMNS, COLUMNS
 
     per_seed = []
     for i in range(2):
@@ -211,7 +211,7 @@ def _result(hybrid=True):
 def test_the_printed_table_defaults_to_the_headline_columns_with_a_legend():
     """Success, break, time and force (the authors' time and force, as the README quotes them), a legend
     line, and narrow; every column with all_columns=True."""
-    from match_jax.evaluation import format_result
+    from match_jax.training.evaluation import format_result
 
     lines = format_result(_result()).splitlines()
     assert lines[1].split() == ["seed", "success", "%", "break", "%", "time", "(s)", "force", "(N)"]

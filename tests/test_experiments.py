@@ -11,7 +11,8 @@ import jax
 import numpy as np
 import pytest
 
-from match_jax import checkpoints, evaluation, experiments, training
+from match_jax.training import checkpoints, evaluation, runs as training
+from match_jax.experiments import pipeline as experiments
 
 def _check_report_and_export(out, shipped):
     """The report of a pose + MATCH suite beside the paper's numbers, its figures, and its export."""
@@ -345,7 +346,7 @@ EARLIER_SUITE_LEARNING = ["--learning-rate", "3e-4", "--gamma", "0.995", "--init
 def test_shipped_suite_policies_load():
     """Every committed suite run's best actors load as their config says (no critic, no optimizer state),
     one per seed, each the checkpoint its evaluation used, and act: a finite env action, seeds distinct."""
-    from match_jax.ppo import deterministic_action
+    from match_jax.rl.ppo import deterministic_action
 
     names = sorted(p.name for p in (SHIPPED / "runs").iterdir())
     assert "match" in names
@@ -450,7 +451,7 @@ def test_table1_row_holds_both_break_checks_the_authors_metrics_and_the_papers()
 
 def test_plot_styles_keep_methods_apart_and_dash_unbreakable_runs():
     """Every method of the suite gets its own color; a run trained unbreakable is dashed in its method's."""
-    from match_jax import plots
+    from match_jax.experiments import plots
 
     names = [spec.label for spec in experiments.SUITE.values()] + ["Hybrid-Basic (unbreakable) (training)"]
     styles = plots.line_styles(names)

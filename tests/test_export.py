@@ -1,4 +1,4 @@
-"""ONNX export (`match_jax.export`): for every method the exported graph, run in onnxruntime, gives the
+"""ONNX export (`match_jax.transfer.export`): for every method the exported graph, run in onnxruntime, gives the
 JAX deterministic policy's action on raw observations through a non-trivial normaliser; the
 stochastic output samples with the scaled std; an exported run exports too; bad input is a one-line
 error naming the bad value.
@@ -17,13 +17,13 @@ import numpy as np
 import onnx
 import pytest
 
-from match_jax import checkpoints
-from match_jax import export as ex
-from match_jax.distributions import Sample
-from match_jax.ppo import deterministic_action
-from match_jax.standin import Policy
-from match_jax.presets import get_preset
-from match_jax.training import Run, RunSpec, export_actors
+from match_jax.training import checkpoints
+from match_jax.transfer import export as ex
+from match_jax.rl.distributions import Sample
+from match_jax.rl.ppo import deterministic_action
+from match_jax.transfer.standin import Policy
+from match_jax.training.presets import get_preset
+from match_jax.training.runs import Run, RunSpec, export_actors
 
 METHODS = ("pose", "vices", "hybrid", "match")
 ATOL = 1e-5

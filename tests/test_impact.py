@@ -9,9 +9,9 @@ import pathlib
 import numpy as np
 import pytest
 
-from match_jax import sim
+from match_jax.envs import sim
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.training import RunSpec
+from match_jax.training.runs import RunSpec
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 

@@ -13,15 +13,15 @@ import numpy as np
 import optax
 import pytest
 
-from match_jax import losses
-from match_jax.distributions import make_distribution
+from match_jax.rl import losses
+from match_jax.rl.distributions import make_distribution
 from match_jax.envs import FPiHConfig
 from match_jax.envs.point_mass import PointMassEnv
-from match_jax.networks import Actor, Critic, NetworkConfig
-from match_jax.overrides import apply_overrides
-from match_jax.ppo import (PPOConfig, apply_gradients, initial_mean_bias, make_optimizer, make_trainer,
+from match_jax.rl.networks import Actor, Critic, NetworkConfig
+from match_jax.training.overrides import apply_overrides
+from match_jax.rl.ppo import (PPOConfig, apply_gradients, initial_mean_bias, make_optimizer, make_trainer,
                            to_critic_units, to_return_units)
-from match_jax.presets import PRESETS, get_preset
+from match_jax.training.presets import PRESETS, get_preset
 
 TINY_NET = NetworkConfig(8, 1, 8, 1)
 

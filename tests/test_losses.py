@@ -8,10 +8,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from match_jax.distributions import make_distribution
-from match_jax.losses import ppo_loss, selection_counts, selection_loss, selection_rates
-from match_jax.networks import Actor, Critic, NetworkConfig
-from match_jax.ppo import PPOConfig, Transition
+from match_jax.rl.distributions import make_distribution
+from match_jax.rl.losses import ppo_loss, selection_counts, selection_loss, selection_rates
+from match_jax.rl.networks import Actor, Critic, NetworkConfig
+from match_jax.rl.ppo import PPOConfig, Transition
 
 N, OBS, CRITIC_OBS = 16, 5, 7
 

@@ -6,8 +6,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from match_jax import sim
-from match_jax.sim import mjx
+from match_jax.envs import sim
+from match_jax.envs.sim import mjx
 
 
 def _rim_contact_hole_pos(env, depth=0.0003):
@@ -152,9 +152,9 @@ def test_static_stiffness_at_the_end_effector_is_factorys():
     1 / (100 N/m) within 20 %. The paper's J^T M_x law is at least twice as stiff on every axis."""
     import dataclasses
 
-    from match_jax.controllers import ControllerConfig
+    from match_jax.envs.controllers import ControllerConfig
     from match_jax.envs import FPiHConfig, FPiHEnv
-    from match_jax.probes import static_compliance
+    from match_jax.envs.probes import static_compliance
     from conftest import QUIET
 
     config = FPiHConfig(control="pose", **QUIET)

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from conftest import QUIET
 
-from match_jax import sim
-from match_jax.controllers.osc import ArmDynamics, hybrid_torque
+from match_jax.envs import sim
+from match_jax.envs.controllers.osc import ArmDynamics, hybrid_torque
 from match_jax.envs import FPiHConfig, FPiHEnv
 
 
@@ -32,8 +32,8 @@ def test_warp_backend_without_warp_says_how_to_install():
 
 
 def test_training_env_must_use_the_methods_controller():
-    from match_jax.presets import get_preset
-    from match_jax.training import make_env
+    from match_jax.training.presets import get_preset
+    from match_jax.training.runs import make_env
 
     with pytest.raises(ValueError, match="method 'match' needs control='hybrid', env has 'pose'") as err:
         make_env(get_preset("tiny", method="match"), FPiHConfig(control="pose"))
@@ -43,7 +43,7 @@ def test_training_env_must_use_the_methods_controller():
 def test_warp_batches_step_on_one_device_with_a_contact_buffer_for_all_worlds():
     """MuJoCo Warp: no env sharding, and the env config's shared contact buffer sized for the whole batch
     (every seed's envs step together); MJX-JAX configs are left as they are."""
-    from match_jax.training import batch_mesh, sized_for_batch
+    from match_jax.training.runs import batch_mesh, sized_for_batch
 
     assert batch_mesh(128, "warp") is None
     jax_config = FPiHConfig(control="pose")
@@ -59,7 +59,7 @@ def test_seed_axes_merge_and_split_around_per_batch_leaves(monkeypatch):
     """The trainer steps (seeds, envs) worlds as one batch: leaves with a world axis merge seeds x envs;
     MuJoCo Warp's once-per-batch leaves (no world axis, one copy per seed) pass the first copy to the
     step and come back as one copy per seed."""
-    from match_jax import ppo
+    from match_jax.rl import ppo
 
     data = {"qpos": jnp.arange(2 * 3 * 4.0).reshape(2, 3, 4), "contact": jnp.stack([jnp.arange(10.0)] * 2),
             "nacon": jnp.array([[5], [5]])}
@@ -89,7 +89,7 @@ def test_a_warp_run_loads_its_policies_on_mjx_jax_without_warp(tmp_path):
     import json
     import shutil
 
-    from match_jax.training import load_policies, load_spec
+    from match_jax.training.runs import load_policies, load_spec
 
     shipped = pathlib.Path(__file__).parents[1] / "results" / "authors_task" / "runs" / "pose"
     run_dir = shutil.copytree(shipped, tmp_path / "pose_on_warp")
@@ -241,9 +241,9 @@ def test_training_on_warp_checkpoints_resumes_and_evaluates(tmp_path):
     one program: trains a chunk, resumes to a larger budget from its checkpoint, and evaluates on Warp and
     on the JAX backend."""
     pytest.importorskip("warp")
-    from match_jax.evaluation import evaluate_run
-    from match_jax.presets import get_preset
-    from match_jax.training import RunSpec, read_metrics, train
+    from match_jax.training.evaluation import evaluate_run
+    from match_jax.training.presets import get_preset
+    from match_jax.training.runs import RunSpec, read_metrics, train
 
     spec = RunSpec(ppo=get_preset("tiny", method="match"), env=FPiHConfig(control="hybrid", physics_backend="warp"),
                    num_seeds=2)

@@ -6,7 +6,7 @@ from matplotlib.lines import Line2D
 import numpy as np
 import pytest
 
-from match_jax import plots
+from match_jax.experiments import plots
 
 
 def test_clip_interval_keeps_rate_intervals_within_0_and_100():
@@ -110,7 +110,7 @@ def test_sweep_figures_clip_bars_and_keep_legends_off_the_data():
 def test_report_gives_the_profile_figure_the_in_contact_selection():
     """The report's profile panels carry the Table 1 row's in-contact force selection (means over seeds; None
     where the row lacks a column or it is NaN)."""
-    from match_jax.report import selection_figure_data
+    from match_jax.experiments.report import selection_figure_data
 
     row = {"selection_profile": _profile(contact=False),
            "aggregate": {"force_selected_contact_per_axis": {"mean": 0.406}, "force_selected_contact_x": {"mean": 0.42},

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from match_jax.envs.point_mass import PointMassEnv
-from match_jax.networks import NetworkConfig
-from match_jax.ppo import (KL_LR_MAX, KL_LR_MIN, PPOConfig, generalized_advantages, kl_adapted_learning_rate,
+from match_jax.rl.networks import NetworkConfig
+from match_jax.rl.ppo import (KL_LR_MAX, KL_LR_MIN, PPOConfig, generalized_advantages, kl_adapted_learning_rate,
                            learning_rate_schedule, make_optimizer, make_trainer, optimizer_learning_rate)
 
 

@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from match_jax import render
+from match_jax.training import render
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
 
@@ -95,7 +95,7 @@ def test_record_episode_is_the_evaluation_rollout(env):
     the reset state that rollout started from (make_rollout's key split)."""
     import jax
 
-    from match_jax.evaluation import make_rollout
+    from match_jax.training.evaluation import make_rollout
 
     def policy(obs, policy_state, key):
         return env.neutral_action(), policy_state
@@ -198,7 +198,7 @@ def test_strip_steps_end_at_the_first_success():
 
 def test_run_title_names_method_and_task_not_the_machines_path(tmp_path):
     """The strip's title of a run: its method, its task and its folder's name, never the absolute path."""
-    from match_jax.training import load_spec
+    from match_jax.training.runs import load_spec
 
     spec = load_spec(REPO / "results" / "suite_authors" / "runs" / "match")
     title = render.run_title(spec, REPO / "results" / "suite_authors" / "runs" / "match", 0, "best")

@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from conftest import QUIET
-from match_jax import export
-from match_jax.controllers import ControllerConfig
+from match_jax.transfer import export
+from match_jax.envs.controllers import ControllerConfig
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.standin import Episode, Perturbation, StandIn, StandInConfig, summarize, wilson_interval
+from match_jax.transfer.standin import Episode, Perturbation, StandIn, StandInConfig, summarize, wilson_interval
 
 RAM = np.array([0.0, 0.0, -1.0, 0.0])  # pose action: down at full speed
 
@@ -138,7 +138,7 @@ def test_the_standin_process_runs_without_jax(pose_description, tmp_path):
     path.write_text(json.dumps(pose_description))
     code = f"""
 import json, sys, numpy as np
-from match_jax.standin import StandIn, StandInConfig, Perturbation
+from match_jax.transfer.standin import StandIn, StandInConfig, Perturbation
 d = json.load(open({str(path)!r}))
 s = StandIn(d, StandInConfig(episode_steps=2))
 r = s.run(lambda obs: np.zeros(4), s.sample_episode(np.random.default_rng(0), 2.5, "shell"))

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 import train as train_cli
-from match_jax import tb_logging
+from match_jax.training import tb_logging
 
 pytest.importorskip("tensorboardX")
 from tb_events import read_scalars  # noqa: E402

@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 
 import train as train_cli
-from match_jax import checkpoints
+from match_jax.training import checkpoints
 from match_jax.envs import FPiHConfig
 from match_jax.envs.point_mass import PointMassConfig, PointMassEnv
-from match_jax.ppo import RuntimeValues, make_trainer
-from match_jax.presets import get_preset
-from match_jax import training
-from match_jax.training import (Run, RunError, RunSpec, TrainingStopped, _CheckpointWriter, _StopSignals, export_actors,
+from match_jax.rl.ppo import RuntimeValues, make_trainer
+from match_jax.training.presets import get_preset
+from match_jax.training import runs as training
+from match_jax.training.runs import (Run, RunError, RunSpec, TrainingStopped, _CheckpointWriter, _StopSignals, export_actors,
                                 load_policies, load_policy, read_metrics, train)
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -477,9 +477,9 @@ def test_envs_shard_over_host_devices(tmp_path):
         f"jax.config.update('jax_compilation_cache_dir', {str(tmp_path / 'jit_cache')!r})\n"
         "jax.config.update('jax_persistent_cache_min_compile_time_secs', 0.0)\n"
         "COLLECTIVE = r' (all-reduce|all-gather|all-to-all|collective-permute|reduce-scatter)(-start)?\\('\n"
-        "from match_jax.ppo import make_trainer\n"
-        "from match_jax.presets import get_preset\n"
-        "from match_jax.training import RunSpec, Run, batch_mesh, shard_envs\n"
+        "from match_jax.rl.ppo import make_trainer\n"
+        "from match_jax.training.presets import get_preset\n"
+        "from match_jax.training.runs import RunSpec, Run, batch_mesh, shard_envs\n"
         "assert len(jax.devices()) == 3\n"
         "assert batch_mesh(4).size == 2 and batch_mesh(3).size == 3 and batch_mesh(5) is None\n"
         "for seeds in (2,):\n"
@@ -515,8 +515,8 @@ def test_several_seeds_initialise_without_deadlock():
     """cpu preset, 3 seeds: the initial state must become ready. A vmap over seeds made the orthogonal
     initialisers one batched LAPACK QR, which deadlocked XLA's CPU thread pool in most tries."""
     code = ("import match_jax, jax\n"
-            "from match_jax.ppo import make_trainer\nfrom match_jax.training import make_env\n"
-            "from match_jax.presets import get_preset\n"
+            "from match_jax.rl.ppo import make_trainer\nfrom match_jax.training.runs import make_env\n"
+            "from match_jax.training.presets import get_preset\n"
             "ppo = get_preset('cpu', method='match')\n"
             "trainer = make_trainer(ppo, make_env(ppo))\n"
             "state = jax.jit(trainer.init)(jax.random.split(jax.random.PRNGKey(0), 3))\n"

@@ -8,8 +8,9 @@ import pathlib
 import numpy as np
 import pytest
 
-from match_jax import claims, transfer_report
-from match_jax.standin import summarize
+from match_jax.experiments import claims
+from match_jax.transfer import report as transfer_report
+from match_jax.transfer.standin import summarize
 
 
 def _trials(n, successes, broken=0, force=2.0, max_force=8.0, rng=None):

@@ -1,4 +1,4 @@
-"""What the trainer (`match_jax.ppo`) and the evaluator read from an env, declared once.
+"""What the trainer (`match_jax.rl.ppo`) and the evaluator read from an env, declared once.
 
 An env trainable here is a Brax-style functional env: `reset(key) -> State` and `step(State, action)
 -> State`, jit- and vmap-able, one env per call (batch with vmap), no auto-reset (wrap it in

@@ -21,15 +21,15 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from match_jax import sim  # first: imports mujoco.mjx quietly (it prints a notice when warp is absent)
+from match_jax.envs import sim  # first: imports mujoco.mjx quietly (it prints a notice when warp is absent)
 
 from brax.envs.base import Env as BraxEnv  # noqa: E402
 from brax.envs.base import State  # noqa: E402
-from match_jax.controllers.action_spaces import ActionConfig, ActionSpace, get_action_space
-from match_jax.controllers.osc import ControllerConfig, ControlTarget, hybrid_torque, orientation_error
-from match_jax import randomization, sensors
-from match_jax.randomization import ModelRandomization
-from match_jax.sim import mjx
+from match_jax.envs.controllers.action_spaces import ActionConfig, ActionSpace, get_action_space
+from match_jax.envs.controllers.osc import ControllerConfig, ControlTarget, hybrid_torque, orientation_error
+from match_jax.envs import randomization, sensors
+from match_jax.envs.randomization import ModelRandomization
+from match_jax.envs.sim import mjx
 
 # Hand pointing down: EE x = world x, EE y = -world y, EE z = -world z (at zero yaw).
 R_DOWN = np.diag([1.0, -1.0, -1.0])
@@ -65,7 +65,7 @@ class FPiHConfig:
     physics_substeps: int = 1
     episode_steps: int = 150
     # Force signal of the force law, the 'policy_step' break check and the force/torque observation:
-    # 'wrist' = the wrist force/torque sensor, tared (`match_jax.sensors`; the authors' signal);
+    # 'wrist' = the wrist force/torque sensor, tared (`match_jax.envs.sensors`; the authors' signal);
     # 'peg_contact' = the sum of the peg's contact forces (no torque). `force_frame`: 'world' = that
     # reading in the world frame, the law's frame; 'hand' = the authors' reading, negated in the hand
     # frame and fed unrotated to the law and the policy (`sensors.authors_reading`: x/y mirrored).

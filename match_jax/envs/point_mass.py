@@ -4,7 +4,7 @@ A 3-D point mass (1 kg, world frame, meters) must reach a random target and stay
 'pose' action space: the three position components are force commands of up to `max_force` N held
 over one policy step of `dt` s (the yaw component is ignored). Reward: exp(-distance / 5 cm), plus 1
 while within `success_radius`. Observations, info keys and episode bookkeeping match FPiHEnv, so
-`match_jax.ppo` trains it unchanged; there is no contact (labels are 0) and nothing breaks.
+`match_jax.rl.ppo` trains it unchanged; there is no contact (labels are 0) and nothing breaks.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 from brax.envs.base import State
 
-from match_jax.controllers.action_spaces import get_action_space
+from match_jax.envs.controllers.action_spaces import get_action_space
 
 
 @dataclasses.dataclass(frozen=True)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 from match_jax.envs.fpih import FPiHConfig
-from match_jax.randomization import ModelRandomization
+from match_jax.envs.randomization import ModelRandomization
 
 TASKS = {
     "authors": {"settings": {}, "force_law": "literal"},

@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 from brax.envs.base import State
 
-from match_jax import sim
+from match_jax.envs import sim
 
 
 # Info keys that describe the finished transition (kept for the learner and the metrics); every

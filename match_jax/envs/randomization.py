@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from match_jax.sim import mjx
+from match_jax.envs.sim import mjx
 
 Range = tuple[float, float]
 GAIN_NAMES = ("pos_stiffness", "rot_stiffness", "force_gain")

@@ -35,7 +35,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from match_jax.controllers.action_spaces import ActionSpace, get_action_space
+from match_jax.envs.controllers.action_spaces import ActionSpace, get_action_space
 
 LOG_2PI = math.log(2.0 * math.pi)
 LOG_2 = math.log(2.0)

@@ -1,7 +1,7 @@
 """Evaluation: roll policies out for whole episodes and compute the paper's Table 1 metrics, for the
 scripted baselines and for every seed of a training run.
 
-    from match_jax.evaluation import evaluate_run, format_result
+    from match_jax.training.evaluation import evaluate_run, format_result
     result = evaluate_run("runs/match_cpu", episodes=100)             # at the training noise
     result = evaluate_run("runs/match_cpu", episodes=500, noise_mm=5.0, noise_type="uniform")
     summary = evaluate_baseline("spiral", episodes=100, noise_m=1e-3)
@@ -25,11 +25,12 @@ import jax.numpy as jnp
 import jax.scipy.stats  # noqa: F401
 import numpy as np
 
-from match_jax import analysis, baselines
+from match_jax.training import analysis
+from match_jax.envs import baselines
 from match_jax.envs import FPiHConfig, FPiHEnv
 from match_jax.envs.fpih import BREAK_SAMPLINGS, break_signal
-from match_jax.ppo import PPOConfig, deterministic_policy, make_trainer
-from match_jax.training import batch_mesh, load_policies, load_spec, on_backend, shard_batch, sized_for_batch
+from match_jax.rl.ppo import PPOConfig, deterministic_policy, make_trainer
+from match_jax.training.runs import batch_mesh, load_policies, load_spec, on_backend, shard_batch, sized_for_batch
 
 Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 
@@ -498,7 +499,7 @@ def baseline_env(name: str, noise_m: float, noise_type: str = "gaussian", break_
 
 def evaluate_baseline(name: str, episodes: int, noise_m: float, noise_type: str = "gaussian",
                       break_force: float = 10.0, seed: int = 0, batch: int = 0, **task) -> dict:
-    """Run `episodes` episodes of a scripted baseline (`match_jax.baselines`); the `summarize` dict and settings.
+    """Run `episodes` episodes of a scripted baseline (`match_jax.envs.baselines`); the `summarize` dict and settings.
     noise_type 'shell': the hole offset lies on the shell out to `noise_m` (`shell_offsets`). `batch` > 0
     runs the episodes in compiled batches of that size (0: all at once); `task`: other FPiHConfig fields."""
     if noise_type not in NOISE_KINDS:

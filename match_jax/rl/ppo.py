@@ -33,11 +33,11 @@ import optax
 from brax.training.acme import running_statistics
 from brax.training.acme import specs
 
-from match_jax.distributions import METHODS, METHOD_CONTROL, ProductDistribution, Sample, make_distribution
-from match_jax.losses import ppo_loss, selection_loss, selection_rates, value_loss
-from match_jax import sim
+from match_jax.rl.distributions import METHODS, METHOD_CONTROL, ProductDistribution, Sample, make_distribution
+from match_jax.rl.losses import ppo_loss, selection_loss, selection_rates, value_loss
+from match_jax.envs import sim
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv, contract
-from match_jax.networks import Actor, Critic, NetworkConfig
+from match_jax.rl.networks import Actor, Critic, NetworkConfig
 
 
 # Default SSL weights, on the axis-mean BCE (`selection_loss`): MATCH with the selection term in the PPO
@@ -709,7 +709,7 @@ def deterministic_action(trainer: Trainer, params: dict, policy_stats, policy_ob
 
 
 def deterministic_policy(trainer: Trainer) -> Any:
-    """`policy(obs, (params, policy_stats), key) -> (action, same state)` for match_jax.evaluation: the
+    """`policy(obs, (params, policy_stats), key) -> (action, same state)` for match_jax.training.evaluation: the
     deterministic action (`deterministic_action`), with the parameters as the policy state, so one
     compiled rollout serves every seed."""
 

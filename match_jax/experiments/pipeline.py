@@ -17,8 +17,8 @@ Resumable: finished runs and evaluations are skipped, interrupted runs resume fr
 An exported suite (--export: report, eval JSONs, best actors) copied into OUT counts its runs as trained
 (same configuration, full step budget) and evaluated, so a suite continues from its committed results.
 Writes OUT/runs/<name>/ (training), OUT/eval/<name>.json, and OUT/REPORT.md with learning_curves.png,
-noise_robustness.png, unbreakable_robustness.png and selection_profile.png (`match_jax.report`). The runs and their
-settings: `match_jax.suite`.
+noise_robustness.png, unbreakable_robustness.png and selection_profile.png (`match_jax.experiments.report`). The runs and their
+settings: `match_jax.experiments.suite`.
 """
 
 from __future__ import annotations
@@ -32,15 +32,16 @@ import time
 
 import match_jax  # noqa: F401  (fast XLA CPU flag)
 
-from match_jax import checkpoints, compile_cache
-from match_jax.checkpoints import CheckpointError
+from match_jax.training import checkpoints
+from match_jax import compile_cache
+from match_jax.training.checkpoints import CheckpointError
 from match_jax.envs.tasks import TASKS
-from match_jax.evaluation import evaluate_run_grid
-from match_jax.report import (_table1_lines, _unbreakable_lines, early_training, episode_window,  # noqa: F401
+from match_jax.training.evaluation import evaluate_run_grid
+from match_jax.experiments.report import (_table1_lines, _unbreakable_lines, early_training, episode_window,  # noqa: F401
                               learning_curves, metric_arrays, write_report)
-from match_jax.suite import (HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, SuiteRun,  # noqa: F401
+from match_jax.experiments.suite import (HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, SuiteRun,  # noqa: F401
                              run_spec, suite_runs, sweep_noise_type, unbreakable)
-from match_jax.training import (ACTORS_DIR, RunError, RunSpec, actor_path, best_record, export_actors, is_exported,
+from match_jax.training.runs import (ACTORS_DIR, RunError, RunSpec, actor_path, best_record, export_actors, is_exported,
                                 load_spec, read_metrics, record_path, train)
 
 def train_one(cfg: SuiteConfig, name: str, log=print) -> bool:
@@ -256,7 +257,7 @@ def parse_args(argv=None) -> SuiteConfig:
     if args.gamma is not None and not 0 <= args.gamma <= 1:
         parser.error(f"--gamma must be in [0, 1], got {args.gamma}")
     if args.physics_backend == "warp":
-        from match_jax import sim
+        from match_jax.envs import sim
 
         if not sim.warp_installed():
             parser.error(f"--physics-backend warp {sim.WARP_MISSING}")

@@ -1,5 +1,5 @@
 """The experiment suite's runs and settings: which runs it trains, with what task, at which budget, and
-the noise sweep it evaluates them on (`match_jax.experiments` runs it, `match_jax.report` reports it)."""
+the noise sweep it evaluates them on (`match_jax.experiments.pipeline` runs it, `match_jax.experiments.report` reports it)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pathlib
 from typing import NamedTuple
 
 from match_jax.envs.tasks import TASKS, task_config
-from match_jax.presets import get_preset
-from match_jax.training import RunSpec
+from match_jax.training.presets import get_preset
+from match_jax.training.runs import RunSpec
 
 
 class SuiteRun(NamedTuple):

@@ -8,10 +8,10 @@ import pathlib
 
 import numpy as np
 
-from match_jax import claims, plots
-from match_jax.presets import get_preset
-from match_jax.suite import HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, run_spec, unbreakable
-from match_jax.training import best_record, read_metrics
+from match_jax.experiments import claims, plots
+from match_jax.training.presets import get_preset
+from match_jax.experiments.suite import HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, run_spec, unbreakable
+from match_jax.training.runs import best_record, read_metrics
 
 
 SWEEP_TITLES = {"shell": "the authors' spherical shells: radius U[previous level, level] in a random direction",

@@ -2,8 +2,8 @@
 energy on the MuJoCo C stand-in at each noise level, beside the same policy in the training simulator
 (the transfer gap) and the paper's real-robot numbers; the figure; the paper's real-robot claims.
 
-    python -m match_jax.transfer_report STANDIN.json --sim pose=POSE_EVAL.json,match=MATCH_EVAL.json --out DIR
-    python -m match_jax.transfer_report STANDIN.json --sim match=SWEEP.json,match=NOISELESS.json --out DIR
+    python -m match_jax.transfer.report STANDIN.json --sim pose=POSE_EVAL.json,match=MATCH_EVAL.json --out DIR
+    python -m match_jax.transfer.report STANDIN.json --sim match=SWEEP.json,match=NOISELESS.json --out DIR
 
 STANDIN.json is written by `benchmarks/standin_protocol.py` (noiseless trials of every seed, then the best
 seed on the noise shells). Each EVAL.json is the training simulator's evaluation of the same run (eval.py
@@ -27,8 +27,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from match_jax import claims
-from match_jax.standin import StandInConfig
+from match_jax.experiments import claims
+from match_jax.transfer.standin import StandInConfig
 
 LABELS = {"pose": "Pose", "vices": "VICES", "hybrid": "Hybrid-Basic", "match": "MATCH"}
 # The paper's real-robot success at the 7.5 mm level, the two numbers its text gives (its figure has the rest).
@@ -221,7 +221,7 @@ def _selection_cell(summary: dict, sim_row: dict | None) -> str:
 def plot(protocol: dict[str, list[Level]], sims: dict[str, list[dict]], path: pathlib.Path) -> None:
     """Success, mean force and max force against noise per method (95 % intervals), the stand-in solid,
     the training simulator dashed, the paper's real-robot success at 7.5 mm as stars."""
-    from match_jax.plots import line_styles, plt
+    from match_jax.experiments.plots import line_styles, plt
 
     fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     styles = line_styles([LABELS.get(m, m) for m in protocol])
@@ -285,7 +285,7 @@ def write_report(standin: dict, sims: dict[str, list[dict]], out: pathlib.Path, 
         lines += table_lines(method, levels, sims.get(method, []), deployment) + [""]
     lines += ["## The paper's real-robot claims on the stand-in", "",
               "Verdicts: the 95 % Welch interval of the difference of per-trial means (see "
-              "`match_jax.transfer_report`). A method that was not run reads 'not run'.", "",
+              "`match_jax.transfer.report`). A method that was not run reads 'not run'.", "",
               "| claim | verdict | ours |", "|---|---|---|"]
     lines += [f"| {c.text} | {c.verdict} | {c.numbers} |" for c in transfer_claims(protocol, sims)]
     path = out / "TRANSFER.md"
@@ -318,7 +318,7 @@ def main(argv=None) -> int:
     sims = {m: [row for p in paths for row in sim_rows(json.loads(p.read_text()))] for m, paths in args.sim.items()}
     try:
         path = write_report(json.loads(args.standin.read_text()), sims, args.out,
-                            "python -m match_jax.transfer_report " + " ".join(sys.argv[1:] if argv is None else argv))
+                            "python -m match_jax.transfer.report " + " ".join(sys.argv[1:] if argv is None else argv))
     except ValueError as err:
         parser.error(str(err))
     print(f"wrote {path}")

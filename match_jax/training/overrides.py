@@ -13,8 +13,8 @@ import math
 import types
 import typing
 
-from match_jax.networks import NetworkConfig
-from match_jax.ppo import PPOConfig
+from match_jax.rl.networks import NetworkConfig
+from match_jax.rl.ppo import PPOConfig
 
 NOT_SETTABLE = ("network",)  # a whole NetworkConfig: set its fields as network.FIELD
 

@@ -1,6 +1,6 @@
 """Policy export to ONNX: one seed's actor as a graph from the raw policy observation to the env action.
 
-    python -m match_jax.export RUN_DIR OUT_DIR [--seed-index I] [--checkpoint best|latest]
+    python -m match_jax.transfer.export RUN_DIR OUT_DIR [--seed-index I] [--checkpoint best|latest]
                                [--stochastic --std-scale 0.05]
 
 writes OUT_DIR/policy_seed<I>.onnx and, beside it, OUT_DIR/policy_seed<I>.json (docs/export.md). The
@@ -33,7 +33,7 @@ INPUT_OBS, INPUT_NOISE = "obs", "noise"
 OUTPUT_ACTION, OUTPUT_SAMPLED, OUTPUT_P_FORCE = "action", "sampled_action", "p_force"
 VERIFY_OBSERVATIONS = 64
 VERIFY_ATOL = 1e-5
-FORMAT = "match_jax.export/1"
+FORMAT = "match_jax.transfer.export/1"
 METADATA_KEY = "match_jax"  # the ONNX metadata entry holding the JSON description
 
 
@@ -243,7 +243,7 @@ def policy_model(weights: ActorWeights, normaliser: Normaliser, mapping: ActionM
         inputs.append(helper.make_tensor_value_info(INPUT_NOISE, TensorProto.FLOAT, ["batch", n_cont]))
         outputs.append(helper.make_tensor_value_info(OUTPUT_SAMPLED, TensorProto.FLOAT, ["batch", mapping.size]))
     graph = helper.make_graph(g.nodes, "match_jax_policy", inputs, outputs, g.initializers)
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="match_jax.export",
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", OPSET)], producer_name="match_jax.transfer.export",
                               doc_string=doc)
     model.ir_version = helper.find_min_ir_version_for(model.opset_import)  # readable by older runtimes too
     onnx.checker.check_model(model)
@@ -366,7 +366,7 @@ def jax_actions(trainer, policy: dict, obs, noise=None, std_scale: float | None 
     import jax
     import jax.numpy as jnp
 
-    from match_jax.distributions import Sample
+    from match_jax.rl.distributions import Sample
 
     dist = trainer.distribution
 
@@ -432,7 +432,7 @@ def export_policy(run_dir: str | pathlib.Path, out_dir: str | pathlib.Path, seed
                   checkpoint: str = "best", std_scale: float | None = None) -> ExportResult:
     """Export seed `seed_index`'s policy ('best' or 'latest' checkpoint; exported runs: 'best') of a run
     directory to OUT_DIR/policy_seed<i>.onnx + .json; std_scale (> 0): add the stochastic output."""
-    from match_jax.training import best_record, is_exported, load_policy
+    from match_jax.training.runs import best_record, is_exported, load_policy
 
     if std_scale is not None and not (isinstance(std_scale, (int, float)) and 0 < std_scale < math.inf):
         raise ExportError(f"std scale must be a finite number > 0, got {std_scale!r}")
@@ -472,7 +472,7 @@ def export_policy(run_dir: str | pathlib.Path, out_dir: str | pathlib.Path, seed
                          doc=f"match_jax {spec.ppo.method} policy, seed index {seed_index} of {run.dir}")
     error = verify(model, run.trainer, policy, mapping, normaliser)
     description["verification"] = {"observations": VERIFY_OBSERVATIONS, "max_abs_error": error,
-                                   "atol": VERIFY_ATOL, "against": "match_jax.ppo.deterministic_action"}
+                                   "atol": VERIFY_ATOL, "against": "match_jax.rl.ppo.deterministic_action"}
     model.metadata_props.add(key=METADATA_KEY, value=json.dumps(description, allow_nan=True))
     out_dir.mkdir(parents=True, exist_ok=True)
     path.write_bytes(model.SerializeToString())
@@ -482,7 +482,7 @@ def export_policy(run_dir: str | pathlib.Path, out_dir: str | pathlib.Path, seed
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m match_jax.export", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m match_jax.transfer.export", description=__doc__.split("\n")[0])
     parser.add_argument("run_dir", type=pathlib.Path, metavar="RUN_DIR", help="a training run (or an exported run)")
     parser.add_argument("out_dir", type=pathlib.Path, metavar="OUT_DIR", help="where to write the .onnx and .json")
     parser.add_argument("--seed-index", type=int, default=0, help="which seed of the run (default 0)")
@@ -504,8 +504,8 @@ def parse_args(argv=None) -> argparse.Namespace:
 def main(argv=None) -> int:
     args = parse_args(argv)
     from match_jax import compile_cache
-    from match_jax.checkpoints import CheckpointError
-    from match_jax.training import RunError
+    from match_jax.training.checkpoints import CheckpointError
+    from match_jax.training.runs import RunError
 
     compile_cache.enable()
     try:

@@ -1,6 +1,6 @@
 """Writes fpih_scene.xml: the Franka FR3 arm, hand, peg and hole block for fragile peg-in-hole.
 
-Run `python match_jax/assets/make_scene.py` after changing a number here; the generated XML is
+Run `python match_jax/envs/assets/make_scene.py` after changing a number here; the generated XML is
 committed so that nothing is generated or downloaded at run time. Units: meters, kilograms, radians.
 
 Sources of the numbers (facts, not copied code):

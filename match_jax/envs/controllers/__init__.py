@@ -1,6 +1,6 @@
 """Low-level control laws (pose, VICES, hybrid force/position) and the policy action spaces."""
 
-from match_jax.controllers.osc import (
+from match_jax.envs.controllers.osc import (
     ArmDynamics,
     ControlTarget,
     ControllerConfig,
@@ -8,7 +8,7 @@ from match_jax.controllers.osc import (
     orientation_error,
     task_inertia,
 )
-from match_jax.controllers.action_spaces import (
+from match_jax.envs.controllers.action_spaces import (
     ACTION_SPACES,
     ActionSpace,
     ActionConfig,

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from match_jax.sim import mjx
+from match_jax.envs.sim import mjx
 
 WRIST_SITE = "wrist"
 WRIST_FORCE, WRIST_TORQUE = "wrist_force", "wrist_torque"
@@ -34,7 +34,7 @@ class WristSensor:
             self.site = model.site(WRIST_SITE).id
         except KeyError as err:
             raise ValueError(f"the scene has no wrist force/torque sensor ({err}); regenerate it with "
-                             "match_jax/assets/make_scene.py") from None
+                             "match_jax/envs/assets/make_scene.py") from None
         self.body = int(model.site_bodyid[self.site])
         self.subtree_mass = float(model.body_subtreemass[self.body])  # kg, hand + peg, nominal
         self.gravity = np.asarray(model.opt.gravity, np.float32)  # m/s^2, world

@@ -28,8 +28,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from match_jax.networks import NetworkConfig
-from match_jax.ppo import PPOConfig
+from match_jax.rl.networks import NetworkConfig
+from match_jax.rl.ppo import PPOConfig
 
 PRESETS: dict[str, PPOConfig] = {
     "paper": PPOConfig(num_envs=256, rollout_steps=150, total_steps=3_000_000, iterations_per_chunk=2,

@@ -13,9 +13,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from match_jax import randomization
-from match_jax.controllers import ControlTarget
-from match_jax.sim import mjx
+from match_jax.envs import randomization
+from match_jax.envs.controllers import ControlTarget
+from match_jax.envs.sim import mjx
 
 
 def static_compliance(env, force_n: float = 1.0, seconds: float = 5.0) -> np.ndarray:

@@ -1,12 +1,12 @@
 """The host side of training: run directory, jitted chunks, logging, checkpoints, resume.
 
-    from match_jax.training import RunSpec, train
-    from match_jax.presets import get_preset
+    from match_jax.training.runs import RunSpec, train
+    from match_jax.training.presets import get_preset
     summary = train(RunSpec(ppo=get_preset("cpu", method="match"), num_seeds=1), "runs/match")
 
 A run directory holds `config.json` (the resolved RunSpec), `metrics.jsonl` (one row per iteration
 and seed), `metrics.csv` (the same, written at the end of each chunk) and `checkpoints/` (see
-`match_jax.checkpoints`). Between jitted chunks of `iterations_per_chunk` PPO iterations the host
+`match_jax.training.checkpoints`). Between jitted chunks of `iterations_per_chunk` PPO iterations the host
 logs, updates the progress bar and saves checkpoints. Ctrl-C or SIGTERM stops a run after the running
 chunk, saved as any chunk is; a run killed otherwise resumes from its latest checkpoint and loses at
 most one chunk of work. Checkpoints are written from a host copy of the state
@@ -33,14 +33,14 @@ import flax.serialization
 import jax
 import numpy as np
 
-from match_jax import checkpoints
+from match_jax.training import checkpoints
 from match_jax.cli import unwritable
-from match_jax.controllers.action_spaces import ActionConfig
-from match_jax.controllers.osc import ControllerConfig
+from match_jax.envs.controllers.action_spaces import ActionConfig
+from match_jax.envs.controllers.osc import ControllerConfig
 from match_jax.envs import FPiHConfig, FPiHEnv
-from match_jax.networks import NetworkConfig
-from match_jax.randomization import ModelRandomization
-from match_jax.ppo import SSL_BETA, PPOConfig, RuntimeValues, Trainer, TrainState, make_trainer
+from match_jax.rl.networks import NetworkConfig
+from match_jax.envs.randomization import ModelRandomization
+from match_jax.rl.ppo import SSL_BETA, PPOConfig, RuntimeValues, Trainer, TrainState, make_trainer
 
 LOGGED = ("iteration", "env_steps", "success_rate", "break_rate", "episodes", "mean_reward", "contact_fraction",
           "loss", "policy_loss", "value_loss", "ssl_loss", "entropy", "approx_kl", "clip_fraction", "p_force",

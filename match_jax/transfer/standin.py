@@ -7,8 +7,8 @@ one-step observation delay). The hybrid force/position law runs at 1 kHz on the 
 an exponential moving average (alpha 0.08), the peg breaks at 20 N on that filtered force, and the
 policy runs at 15 Hz through the ONNX file only.
 
-    python -m match_jax.standin policy/policy_seed0.onnx --trials 30 --out trials.json
-    python -m match_jax.standin policy/policy_seed0.onnx --trials 50 --noise-mm 5 --noise-type shell --out t.json
+    python -m match_jax.transfer.standin policy/policy_seed0.onnx --trials 30 --out trials.json
+    python -m match_jax.transfer.standin policy/policy_seed0.onnx --trials 50 --noise-mm 5 --noise-type shell --out t.json
 
 Units: m, rad, s, N, N m, J; world frame unless stated.
 """
@@ -148,7 +148,7 @@ class Episode:
 
 
 def scene_path() -> pathlib.Path:
-    return pathlib.Path(str(importlib.resources.files("match_jax") / "assets" / "fpih_scene.xml"))
+    return pathlib.Path(str(importlib.resources.files("match_jax.envs") / "assets" / "fpih_scene.xml"))
 
 
 def shell_offset(rng: np.random.Generator, level_mm: float) -> np.ndarray:
@@ -171,7 +171,7 @@ def orientation_error(rot: np.ndarray, rot_target: np.ndarray) -> np.ndarray:
 
 
 class Policy:
-    """An exported policy (`match_jax.export`): ONNX file + its JSON, run with onnxruntime.
+    """An exported policy (`match_jax.transfer.export`): ONNX file + its JSON, run with onnxruntime.
 
     noise_seed: None for the deterministic action (tanh of the mean); a numpy seed (int or ints) to sample the exported
     stochastic action (`--stochastic`: tanh(mean + std_scale * std * noise), selections deterministic) with
@@ -186,7 +186,7 @@ class Policy:
             raise FileNotFoundError(f"no ONNX policy at {path}")
         json_path = path.with_suffix(".json")
         if not json_path.is_file():
-            raise FileNotFoundError(f"no description {json_path.name} beside {path} (write both with match_jax.export)")
+            raise FileNotFoundError(f"no description {json_path.name} beside {path} (write both with match_jax.transfer.export)")
         self.description = json.loads(json_path.read_text())
         stochastic = self.description.get("stochastic")
         if noise_seed is not None and not stochastic:
@@ -551,7 +551,7 @@ def run_trials(onnx_path: str | pathlib.Path, trials: int, noise_mm: float = 0.0
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("policy", type=pathlib.Path, help="ONNX file written by match_jax.export (its .json beside it)")
+    parser.add_argument("policy", type=pathlib.Path, help="ONNX file written by match_jax.transfer.export (its .json beside it)")
     parser.add_argument("--trials", type=int, default=30)
     parser.add_argument("--noise-mm", type=float, default=0.0,
                         help="hole-position observation error level, mm (default 0: the hole observed where it is, "

@@ -25,7 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
 
-from match_jax.analysis import PHASES  # noqa: E402
+from match_jax.training.analysis import PHASES  # noqa: E402
 
 DODGE_MM = 0.08  # x offset between runs' points in the noise figures (mm)
 T_975 = {1: 12.71, 2: 4.30, 3: 3.18, 4: 2.78, 5: 2.57, 6: 2.45, 7: 2.36, 8: 2.31, 9: 2.26}  # t quantiles, df

@@ -1,7 +1,7 @@
 """SimBa actor and critic networks (Flax linen) for the asymmetric actor-critic.
 
 SimBa (Lee et al. 2024): inputs normalised by running mean/std (kept outside the network, see
-`match_jax.ppo`), Dense(H), N residual blocks x + Dense(H)(relu(Dense(4H)(LayerNorm(x)))), a final
+`match_jax.rl.ppo`), Dense(H), N residual blocks x + Dense(H)(relu(Dense(4H)(LayerNorm(x)))), a final
 LayerNorm, then a linear head. The actor reads the policy observation ('state'); the critic reads
 the privileged observation ('privileged_state', plus the episode-time fraction).
 """
@@ -14,7 +14,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from match_jax.distributions import INITIAL_P_POSITION, PolicyHead, selection_bias
+from match_jax.rl.distributions import INITIAL_P_POSITION, PolicyHead, selection_bias
 
 
 @dataclasses.dataclass(frozen=True)

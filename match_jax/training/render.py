@@ -24,7 +24,7 @@ import jax
 import numpy as np
 
 from match_jax.envs.fpih import PHASE_NAMES
-from match_jax.evaluation import make_rollout
+from match_jax.training.evaluation import make_rollout
 
 
 class RenderUnavailable(RuntimeError):
