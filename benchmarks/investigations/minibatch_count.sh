@@ -6,10 +6,10 @@
 # to itself for its env steps/s to compare.
 # Then, in one process on the idle cores, whole PPO iterations of both settings (3 seeds), compiled apart:
 # the wall-clock ratio within one run (OUT_JSON with _throughput before .json).
-#   bash benchmarks/minibatch_count.sh RUNS_DIR [OUT_JSON]
+#   bash benchmarks/investigations/minibatch_count.sh RUNS_DIR [OUT_JSON]
 #   (RUNS_DIR/match: authors_task_runs.sh's MATCH run; RUNS_DIR/match_mb150 is trained here)
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "$0")/../.."
 runs=${1:?usage: minibatch_count.sh RUNS_DIR [OUT_JSON]}
 out=${2:-results/authors_task/minibatch_count.json}
 dir="$runs/match_mb150"

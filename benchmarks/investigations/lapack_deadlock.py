@@ -1,7 +1,7 @@
 """Does an XLA flag prevent the batched-LAPACK deadlock on CPU? Reproduces it and counts hangs.
 
-    python benchmarks/lapack_deadlock.py --tries 4                                            # no extra flag
-    python benchmarks/lapack_deadlock.py --tries 4 --xla-flag=--xla_cpu_experimental_ynn_fusion_type=
+    python benchmarks/investigations/lapack_deadlock.py --tries 4                                            # no extra flag
+    python benchmarks/investigations/lapack_deadlock.py --tries 4 --xla-flag=--xla_cpu_experimental_ynn_fusion_type=
 
 Each try is a fresh process that initialises 3 seeds of the cpu-preset MATCH trainer with the seeds
 vmapped (`jax.lax.map` replaced by `jax.vmap`, as the trainer did before it looped over seeds), which
@@ -19,7 +19,7 @@ import subprocess
 import sys
 import time
 
-REPO = pathlib.Path(__file__).resolve().parents[1]
+REPO = pathlib.Path(__file__).resolve().parents[2]
 CHILD = """
 import match_jax, jax
 jax.lax.map = lambda f, xs, **kw: jax.vmap(f)(xs)

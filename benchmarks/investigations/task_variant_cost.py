@@ -1,7 +1,7 @@
 """What the authors' task costs against the earlier variant: env and training throughput in one run.
 
-    python benchmarks/task_variant_cost.py --json results/task_variant_cost.json
-    python benchmarks/task_variant_cost.py --batch 128 --repeats 5 --training-iterations 1
+    python benchmarks/investigations/task_variant_cost.py --json results/task_variant_cost.json
+    python benchmarks/investigations/task_variant_cost.py --batch 128 --repeats 5 --training-iterations 1
 
 Env variants (jit(vmap(env.step)) at one batch, hybrid controller, in contact-rich states: every env is
 first driven onto the block top and pressed there, as benchmarks/step_breakdown.py does):

@@ -2,7 +2,7 @@
 shells, with the peg moved in the hand every episode (the default) and held rigidly; break rates under both samplings
 on the same episodes (one unbreakable rollout, thresholds applied afterwards).
 
-    python benchmarks/spiral_authors_task.py --episodes 200 --json results/authors_task/spiral_baseline.json
+    python benchmarks/investigations/spiral_authors_task.py --episodes 200 --json results/authors_task/spiral_baseline.json
 
 The spiral search reads only the actor's observation, so the in-hand offset is hidden from it as from a
 learned policy: a search, it should still find the hole. Each row: `evaluation.evaluate_baseline`.

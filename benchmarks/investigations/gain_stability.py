@@ -1,7 +1,7 @@
 """Which rotational stiffness the control law holds still: Pose envs at the neutral action, every drawn gain
 nominal but the rotational k_p, for 40 policy steps (5.3 s).
 
-    python benchmarks/gain_stability.py --json results/transfer/gain_stability.json
+    python benchmarks/investigations/gain_stability.py --json results/transfer/gain_stability.json
 
 Per k_p (N m/rad; k_d = 2 sqrt(k_p), applied once per control step) and control rate: the fraction of envs
 whose peg broke (the 15 Hz wrist check, 10 N) and that touched the block, and the mean |joint velocity| of
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
         rows += hold(FPiHEnv(fast), [float(v) for v in args.fast_control.split(",")], args.envs, args.steps)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"command": "python benchmarks/gain_stability.py", "envs": args.envs,
+        args.json.write_text(json.dumps({"command": "python benchmarks/investigations/gain_stability.py", "envs": args.envs,
                                          "steps": args.steps, "rows": rows}, indent=1, default=float) + "\n")
     return 0
 

@@ -1,7 +1,7 @@
 """Fraction of episodes that start inside the lateral capture range, per hole-noise level, with the peg
 moved in the hand (uniform +-3 mm across the fingers, the hand yawed U(+-45 deg)) and held rigidly.
 
-    python benchmarks/capture_fractions.py --json results/authors_task/capture_fractions.json
+    python benchmarks/investigations/capture_fractions.py --json results/authors_task/capture_fractions.json
 
 An episode "starts inside" when the peg tip's lateral distance from the bore axis, once the end effector
 is placed over the observed hole, is below the capture range (2.5 mm: docs/task.md's self-centring

@@ -3,7 +3,7 @@ all its differences from the training simulator, then with one difference remove
 removed (the training simulator's timing and force signal, `StandInConfig.like_training`, breakable at the
 stand-in's 20 N). Every configuration runs the same episodes (same seed), so the rates are paired.
 
-    python benchmarks/standin_gap.py ~/transfer/pose/policy_seed1.onnx --trials 30 --out results/transfer/gap.json
+    python benchmarks/investigations/standin_gap.py ~/transfer/pose/policy_seed1.onnx --trials 30 --out results/transfer/gap.json
 """
 
 from __future__ import annotations

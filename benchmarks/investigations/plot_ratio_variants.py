@@ -1,6 +1,6 @@
 """Curves of the MATCH ratio/SSL variants trained on one H100 (benchmarks/variants_match_ratio.txt):
 
-    python benchmarks/plot_ratio_variants.py   # reads and writes results/match_ratio_variants_h100/
+    python benchmarks/investigations/plot_ratio_variants.py   # reads and writes results/match_ratio_variants_h100/
 """
 
 import csv
@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-HERE = pathlib.Path(__file__).resolve().parents[1] / "results" / "match_ratio_variants_h100"
+HERE = pathlib.Path(__file__).resolve().parents[2] / "results" / "match_ratio_variants_h100"
 
 
 def column(rows, key):

@@ -1,6 +1,6 @@
 """Where a training rollout's time goes: policy network vs physics, and what contact costs.
 
-    python benchmarks/rollout_cost.py --json results/rollout_cost.json
+    python benchmarks/investigations/rollout_cost.py --json results/rollout_cost.json
 
 All in one process, each a jitted 150-step `lax.scan` of the auto-reset Pose env at the cpu preset's
 batch (128 envs), timed after compilation:
@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
+import sys
 
 import match_jax  # noqa: F401  (fast XLA CPU flag)
 
@@ -38,7 +39,8 @@ from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv
 from match_jax.rl.networks import Actor
 from match_jax.training.presets import get_preset
 from match_jax.envs.sim import mjx
-from throughput import _timed  # benchmarks/ is on sys.path when this script runs
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # benchmarks/, for throughput.py
+from throughput import _timed  # noqa: E402
 
 
 def rollout_costs(batch: int, steps: int, repeats: int) -> list[dict]:

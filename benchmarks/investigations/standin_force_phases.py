@@ -5,7 +5,7 @@ force control (the stand-in's counts, per policy step and axis as eval.py's per-
 the protocol's episodes (seed 0); `--config` removes differences from the training simulator (`like-training`:
 its timing and force signal).
 
-    python benchmarks/standin_force_phases.py --policies pose=RUN/onnx/policy_seed0.onnx,vices=... \
+    python benchmarks/investigations/standin_force_phases.py --policies pose=RUN/onnx/policy_seed0.onnx,vices=... \
         --stochastic pose --trials 8 --json results/transfer/dynamics_randomization/force_phases.json
 """
 

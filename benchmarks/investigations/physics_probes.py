@@ -1,6 +1,6 @@
 """Physics-facing numbers of the controller: end-effector stiffness and the self-centring range.
 
-    python benchmarks/physics_probes.py --json results/physics_probes.json
+    python benchmarks/investigations/physics_probes.py --json results/physics_probes.json
 
 Stiffness: settled end-effector displacement under 1 N along x, y, z at the spawn pose
 (`probes.static_compliance`), for Factory's law (default) and the paper's J^T M_x law.

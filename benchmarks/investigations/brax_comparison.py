@@ -4,20 +4,20 @@ Run it in its own virtual environment (Brax 0.14.2's PPO calls `jax.device_put_r
 jax 0.10 removed, so it cannot run on the repo's default jax 0.10.2):
 
     python3 -m venv /work/brax_venv
-    /work/brax_venv/bin/pip install -r benchmarks/requirements-brax-comparison.txt
-    /work/brax_venv/bin/python benchmarks/brax_comparison.py --json results/brax_comparison.json
+    /work/brax_venv/bin/pip install -r benchmarks/investigations/requirements-brax-comparison.txt
+    /work/brax_venv/bin/python benchmarks/investigations/brax_comparison.py --json results/brax_comparison.json
 
 (run from the repo root; the script puts the repo root on sys.path itself, so match_jax need not be
 installed in that venv). A smoke run that exercises both trainers (~10 min on 2 busy CPU cores, almost
 all of it XLA compiles):
 
-    /work/brax_venv/bin/python benchmarks/brax_comparison.py --num-envs 8 --total-steps 3600 \
+    /work/brax_venv/bin/python benchmarks/investigations/brax_comparison.py --num-envs 8 --total-steps 3600 \
         --eval-episodes 8 --json /tmp/brax_comparison_tiny.json
 
 Speed at equal contact load (both policies kept at their initialisation, which touch the block on
 ~1 % of env-steps; the trainers still do all their work, the updates are just ~1e-12 in size):
 
-    /work/brax_venv/bin/python benchmarks/brax_comparison.py --learning-rate 1e-12 --total-steps 153600 \
+    /work/brax_venv/bin/python benchmarks/investigations/brax_comparison.py --learning-rate 1e-12 --total-steps 153600 \
         --evals 4 --eval-episodes 32 --json results/brax_comparison_frozen.json
 
 What runs, in ONE process, on `FPiHEnv(FPiHConfig(control="pose"))` (150-step episodes):
@@ -112,7 +112,7 @@ Other differences that remain (Brax as it is used here vs ours):
 
 Contact load. MJX's constraint solver is a while loop that, under vmap, runs until the slowest env of
 the batch converges, so a batch step with any env touching the block costs up to ~2.3x a free-space
-one (`benchmarks/rollout_cost.py`): env steps/s depends on how much a trainer's policy touches. At
+one (`benchmarks/investigations/rollout_cost.py`): env steps/s depends on how much a trainer's policy touches. At
 each evaluation point both trainers' STOCHASTIC policies (their training-time sampling) are also run
 on the same evaluation episodes, and the fraction of env-steps in contact is recorded
 (`explore_contact_rate`), so per-interval speeds can be compared at similar contact loads (ours also
@@ -137,7 +137,7 @@ import sys
 import tempfile
 import time
 
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))  # the repo root
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2]))  # the repo root
 
 import match_jax  # noqa: E402,F401  (first: sets the fast XLA CPU flag before JAX starts)
 
