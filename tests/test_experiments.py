@@ -343,27 +343,35 @@ SHIPPED = pathlib.Path(__file__).resolve().parents[1] / "results" / "suite_cpu"
 EARLIER_SUITE_LEARNING = ["--learning-rate", "3e-4", "--gamma", "0.995", "--initial-force-z", "-1"]
 
 
-def test_shipped_suite_policies_load():
-    """Every committed suite run's best actors load as their config says (no critic, no optimizer state),
+SHIPPED_RUNS = sorted(p.name for p in (SHIPPED / "runs").iterdir())
+# MATCH and Pose by default; the other ten runs with -m slow (each compiles its own policy: ~10 s).
+SHIPPED_DEFAULT = ("match", "pose")
+
+
+def test_the_shipped_suite_has_every_run():
+    assert set(SHIPPED_DEFAULT) <= set(SHIPPED_RUNS) and len(SHIPPED_RUNS) == 12
+
+
+@pytest.mark.parametrize("name", [n if n in SHIPPED_DEFAULT else pytest.param(n, marks=pytest.mark.slow)
+                                  for n in SHIPPED_RUNS])
+def test_shipped_suite_policies_load(name):
+    """A committed suite run's best actors load as their config says (no critic, no optimizer state),
     one per seed, each the checkpoint its evaluation used, and act: a finite env action, seeds distinct."""
     from match_jax.rl.ppo import deterministic_action
 
-    names = sorted(p.name for p in (SHIPPED / "runs").iterdir())
-    assert "match" in names
-    for name in names:
-        run, policies = training.load_policies(SHIPPED / "runs" / name)
-        grid = json.loads((SHIPPED / "eval" / f"{name}.json").read_text())
-        records = [json.loads((SHIPPED / "runs" / name / "actors" / f"seed{i}.json").read_text())
-                   for i in range(run.spec.num_seeds)]
-        assert len(policies) == run.spec.num_seeds == grid[0]["seeds"] == 3, name
-        assert [r["iteration"] for r in records] == grid[0]["best_iterations"], name
-        obs = jax.numpy.zeros((4,) + run.env.observation_size["state"])
-        actions = [np.asarray(deterministic_action(run.trainer, p["params"], p["policy_stats"], obs))
-                   for p in policies]
-        for policy, action in zip(policies, actions):
-            assert set(policy) == {"params", "policy_stats"} and set(policy["params"]) == {"actor"}, name
-            assert action.shape == (4, run.env.action_size) and np.all(np.isfinite(action)), name
-        assert not np.array_equal(actions[0], actions[1]), name  # trained seeds, not copies
+    run, policies = training.load_policies(SHIPPED / "runs" / name)
+    grid = json.loads((SHIPPED / "eval" / f"{name}.json").read_text())
+    records = [json.loads((SHIPPED / "runs" / name / "actors" / f"seed{i}.json").read_text())
+               for i in range(run.spec.num_seeds)]
+    assert len(policies) == run.spec.num_seeds == grid[0]["seeds"] == 3, name
+    assert [r["iteration"] for r in records] == grid[0]["best_iterations"], name
+    obs = jax.numpy.zeros((4,) + run.env.observation_size["state"])
+    actions = [np.asarray(deterministic_action(run.trainer, p["params"], p["policy_stats"], obs))
+               for p in policies]
+    for policy, action in zip(policies, actions):
+        assert set(policy) == {"params", "policy_stats"} and set(policy["params"]) == {"actor"}, name
+        assert action.shape == (4, run.env.action_size) and np.all(np.isfinite(action)), name
+    assert not np.array_equal(actions[0], actions[1]), name  # trained seeds, not copies
 
 
 def test_a_suite_continues_from_its_exported_results(tmp_path, monkeypatch, capsys):

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from match_jax.rl.distributions import make_distribution
-from match_jax.rl.losses import ppo_loss, selection_counts, selection_loss, selection_rates
+from match_jax.rl.losses import critic_loss, ppo_loss, selection_counts, selection_loss, selection_rates
 from match_jax.rl.networks import Actor, Critic, NetworkConfig
 from match_jax.rl.ppo import PPOConfig, Transition
 
@@ -53,6 +53,22 @@ def test_ratio_one_leaves_value_and_selection_losses(setup):
     assert float(total) - float(total0) == pytest.approx(config.ssl_beta * ssl, rel=1e-4)
     p = jax.nn.sigmoid(head.logits)
     assert float(selection_rates(counts)["p_force"]) == pytest.approx(float(p.mean()), rel=1e-5)
+
+
+@pytest.mark.parametrize("kind", ["mse", "huber"])
+def test_critic_loss_is_the_value_half_of_the_ppo_loss(setup, kind):
+    """critic_loss (the value-only steps' loss) is ppo_loss's value term, and its gradient reaches the critic
+    only."""
+    config, params, batch, kw, head = setup
+    config = dataclasses.replace(config, value_loss=kind)
+    adv, returns = jnp.linspace(-1.0, 2.0, N), jnp.linspace(0.0, 3.0, N)
+    old_values = returns + jnp.linspace(-0.5, 0.5, N)
+    _, (m, _) = ppo_loss(params, batch, adv, returns, old_values, config=config, **kw)
+    value = critic_loss(params, batch, returns, old_values, critic=kw["critic"], config=config)
+    assert float(value) == pytest.approx(float(m["value_loss"]), rel=1e-6) and float(value) > 0
+    grads = jax.grad(critic_loss)(params, batch, returns, old_values, critic=kw["critic"], config=config)
+    assert all(float(jnp.abs(g).max()) == 0.0 for g in jax.tree_util.tree_leaves(grads["actor"]))
+    assert any(float(jnp.abs(g).max()) > 0.0 for g in jax.tree_util.tree_leaves(grads["critic"]))
 
 
 def test_clipping_caps_the_surrogate(setup):

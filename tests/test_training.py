@@ -511,6 +511,7 @@ def test_envs_shard_over_host_devices(tmp_path):
     assert "ok 2" in out.stdout
 
 
+@pytest.mark.slow
 def test_several_seeds_initialise_without_deadlock():
     """cpu preset, 3 seeds: the initial state must become ready. A vmap over seeds made the orthogonal
     initialisers one batched LAPACK QR, which deadlocked XLA's CPU thread pool in most tries."""

@@ -85,6 +85,12 @@ def value_loss(predicted: jax.Array, returns: jax.Array, old_values: jax.Array |
     return jnp.mean(optax.huber_loss(predicted, returns, delta=HUBER_MAD_SCALE * mad))
 
 
+def critic_loss(params, batch, returns, old_values=None, *, critic, config) -> jax.Array:
+    """`value_loss` of the critic on a minibatch (`ppo.Transition`'s critic_obs), unweighted: the value half
+    of `ppo_loss`, and the loss of the value-only steps that `critic_steps` adds."""
+    return value_loss(critic.apply(params["critic"], batch.critic_obs), returns, old_values, config.value_loss)
+
+
 def ppo_loss(params, batch, adv, returns, old_values=None, *, actor, critic, dist, config, ssl_beta=None):
     """PPO's clipped surrogate + value loss (+ beta x selection loss for hybrid policies, 'joint' phase).
 
@@ -102,10 +108,9 @@ def ppo_loss(params, batch, adv, returns, old_values=None, *, actor, critic, dis
     if config.normalize_advantages:
         adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     pg_loss = -jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - config.clip_eps, 1 + config.clip_eps) * adv).mean()
-    values = critic.apply(params["critic"], batch.critic_obs)
-    critic_loss = value_loss(values, returns, old_values, config.value_loss)
+    value = critic_loss(params, batch, returns, old_values, critic=critic, config=config)
     entropy = dist.entropy(head).mean()
-    total = pg_loss + config.value_coef * critic_loss - config.entropy_coef * entropy
+    total = pg_loss + config.value_coef * value - config.entropy_coef * entropy
     ssl_loss = jnp.zeros(())
     counts = None
     if dist.num_selections:
@@ -116,7 +121,7 @@ def ppo_loss(params, batch, adv, returns, old_values=None, *, actor, critic, dis
     metrics = {
         "loss": total,
         "policy_loss": pg_loss,
-        "value_loss": critic_loss,
+        "value_loss": value,
         "entropy": entropy,
         "ssl_loss": ssl_loss,
         "approx_kl": jnp.mean((ratio - 1.0) - log_ratio),

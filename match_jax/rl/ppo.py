@@ -34,7 +34,7 @@ from brax.training.acme import running_statistics
 from brax.training.acme import specs
 
 from match_jax.rl.distributions import METHODS, METHOD_CONTROL, ProductDistribution, Sample, make_distribution
-from match_jax.rl.losses import ppo_loss, selection_loss, selection_rates, value_loss
+from match_jax.rl.losses import critic_loss, ppo_loss, selection_loss, selection_rates
 from match_jax.envs import sim
 from match_jax.envs import AutoResetEnv, FPiHConfig, FPiHEnv, contract
 from match_jax.rl.networks import Actor, Critic, NetworkConfig
@@ -585,9 +585,8 @@ def update(learner: Learner, params: dict, opt_state, traj: Transition, targets:
     def apply_grads(params, opt_state, grads, actor_on=True):
         return apply_gradients(optimizer, params, opt_state, grads, actor_on=actor_on)
 
-    def critic_loss(params, batch, adv, returns, old_values):
-        values = learner.critic.apply(params["critic"], batch.critic_obs)
-        return config.value_coef * value_loss(values, returns, old_values, config.value_loss)
+    def value_step_loss(params, batch, adv, returns, old_values):  # the value half of loss_fn
+        return config.value_coef * critic_loss(params, batch, returns, old_values, critic=learner.critic, config=config)
 
     def minibatch(carry, mb):
         params, opt_state, actor_on = carry
@@ -602,7 +601,8 @@ def update(learner: Learner, params: dict, opt_state, traj: Transition, targets:
         params, opt_state = apply_grads(params, opt_state, grads,
                                         actor_on if config.kl_threshold is not None else True)
         for _ in range(config.critic_steps - 1):
-            params, opt_state = apply_grads(params, opt_state, jax.grad(critic_loss)(params, *mb), actor_on=False)
+            params, opt_state = apply_grads(params, opt_state, jax.grad(value_step_loss)(params, *mb),
+                                            actor_on=False)
         aux = ({**aux[0], "actor_steps": actor_on.astype(jnp.float32)}, aux[1])
         return (params, opt_state, actor_on), aux
 
