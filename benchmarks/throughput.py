@@ -18,7 +18,7 @@ epochs, one jitted chunk) at each preset's sizes, after compilation, and in the 
 alone (jit(vmap(step)) with auto-reset) at the same batch, so the ratio shows what learning costs.
 
 The env batch is split over JAX's CPU devices as train.py splits it (`import match_jax` makes one
-per core; `training.batch_mesh`), in both modes, for the env and for bare mjx.step alike.
+per core; `runs.batch_mesh`), in both modes, for the env and for bare mjx.step alike.
 
     python benchmarks/throughput.py --training cpu --method match --host-devices 1,2
 

@@ -106,7 +106,7 @@ Other differences that remain (Brax as it is used here vs ours):
   ours clips actor and critic separately and uses eps 1e-5.
 - devices: `import match_jax` gives JAX one CPU device per core (`match_jax._xla`), and both trainers
   split the envs over them: Brax runs its training epoch under `jax.pmap` over all local devices (its
-  default), ours under `jax.jit` with the env axis sharded (`training.shard_envs`, as train.py does)
+  default), ours under `jax.jit` with the env axis sharded (`runs.shard_envs`, as train.py does)
   and the env step under `shard_map` (`ppo.make_trainer(mesh=...)`).
   `config.host_devices` records the count; JAX_NUM_CPU_DEVICES=1 gives the one-device comparison.
 

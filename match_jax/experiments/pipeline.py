@@ -181,7 +181,7 @@ def run_suite(cfg: SuiteConfig, command: str, log=print) -> dict[str, list[dict]
 def export_suite(cfg: SuiteConfig, dest: pathlib.Path, results: dict[str, list[dict]], log=print) -> pathlib.Path:
     """Copy what the report shows to `dest` (e.g. a results folder under version control): REPORT.md, the
     figures and, per run in `results` (the evaluated runs), its eval JSON, config, metrics and best actors
-    (`training.export_actors`: no critic, no optimizer state), so `python eval.py DEST/runs/<name>`
+    (`runs.export_actors`: no critic, no optimizer state), so `python eval.py DEST/runs/<name>`
     evaluates the shipped policies. Other runs already in `dest` are left as they are."""
     dest.mkdir(parents=True, exist_ok=True)
     for path in [cfg.out / "REPORT.md", *sorted(cfg.out.glob("*.png"))]:

@@ -277,7 +277,7 @@ def initial_stats(size: int) -> running_statistics.RunningStatisticsState:
 
 class RuntimeValues(NamedTuple):
     """Settings the trainer takes as arguments, not as constants of its program: configurations that
-    differ only in these share one compiled program (`training.programs`)."""
+    differ only in these share one compiled program (`runs.programs`)."""
 
     ssl_beta: Any  # weight of the selection loss ('joint' phase)
     break_force: Any  # N; inf = unbreakable
@@ -395,7 +395,7 @@ def seed_batch_step(benv: AutoResetEnv, num_envs: int, mesh: jax.sharding.Mesh |
     """`benv.step` on (seeds, envs, ...) state and action leaves, stepped as one flat batch: a vmap over
     seeds would turn the auto-reset's lax.cond into a select that runs the reset on every step.
 
-    mesh: the 1-D device mesh ('envs') the env batch is split over (`training.batch_mesh`). The step
+    mesh: the 1-D device mesh ('envs') the env batch is split over (`runs.batch_mesh`). The step
     then runs under `shard_map`: every device steps its own block of envs (of every seed) with no
     cross-device work (its own auto-reset `lax.cond`, its own MJX solver loops), as Brax's pmap does;
     measured on 2 CPU devices that stepped a contact-heavy batch 1.2x faster than leaving the
