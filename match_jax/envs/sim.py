@@ -38,7 +38,7 @@ PEG_FORCE_SENSORS = ("peg_force", "peg_rim_proxy_force")
 
 def scene_path() -> str:
     """Path of the packaged fPiH scene MJCF (installed as package data)."""
-    return str(importlib.resources.files("match_jax.envs") / "assets" / SCENE_FILE)
+    return str(importlib.resources.files("match_jax") / "envs" / "assets" / SCENE_FILE)
 
 
 def load_model(physics_substeps: int = 1, control_dt: float = 1.0 / 120.0,

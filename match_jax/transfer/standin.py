@@ -148,7 +148,7 @@ class Episode:
 
 
 def scene_path() -> pathlib.Path:
-    return pathlib.Path(str(importlib.resources.files("match_jax.envs") / "assets" / "fpih_scene.xml"))
+    return pathlib.Path(str(importlib.resources.files("match_jax") / "envs" / "assets" / "fpih_scene.xml"))
 
 
 def shell_offset(rng: np.random.Generator, level_mm: float) -> np.ndarray:
