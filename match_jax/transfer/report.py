@@ -306,7 +306,7 @@ def _sims(text: str) -> dict[str, list[pathlib.Path]]:
 def main(argv=None) -> int:
     import json
 
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="python -m match_jax.transfer.report", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("standin", type=pathlib.Path, help="the protocol's JSON (benchmarks/standin_protocol.py)")
     parser.add_argument("--sim", type=_sims, default={}, metavar="METHOD=EVAL.json,...",
                         help="training-simulator evaluations of the same runs (a method named twice: both files)")

@@ -550,7 +550,7 @@ def run_trials(onnx_path: str | pathlib.Path, trials: int, noise_mm: float = 0.0
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="python -m match_jax.transfer.standin", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("policy", type=pathlib.Path, help="ONNX file written by match_jax.transfer.export (its .json beside it)")
     parser.add_argument("--trials", type=int, default=30)
     parser.add_argument("--noise-mm", type=float, default=0.0,
