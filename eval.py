@@ -5,13 +5,16 @@
     python eval.py runs/match_cpu --unbreakable --checkpoint latest
     python eval.py --baseline spiral --episodes 100 --noise-mm 1 --json results/spiral.json
     python eval.py runs/match_cpu --episodes 100 --render results/match_episode.png  # + image strip and GIF
+    python eval.py runs/match_cpu --env.contact-timeconst 0.05     # any field of the run's task config
 
 A run is evaluated for every seed with the deterministic policy (tanh of the mean, force control
 where p_force > 0.5) with one compiled rollout, run once per seed and noise level, at the training noise unless
 --noise-mm / --noise-sweep say otherwise. Printed: per seed and mean +- standard error over seeds of
 success %, break %, time to success (s) and mean contact force (N), time and force by the authors'
 definitions, with a legend line (--all-columns adds ours, both break checks and, for hybrid policies,
-the force-selection rates). The JSON (--json) holds every column.
+the force-selection rates). The JSON (--json) holds every column. Every field of the run's task config
+(FPiHConfig and its nested configs) is a flag, --env.FIELD or --env.controller.FIELD, ..., as train.py's
+--help lists them; they replace the run's values for this evaluation.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from match_jax.cli import Parser
+    from match_jax.cli import Parser, parse_fields, split_field_flags
 
     parser = Parser(prog="eval.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
                     short_usage="RUN_DIR [options] | --baseline {spiral,pose} [options]")
@@ -62,7 +65,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--video-format", choices=["gif", "mp4"], default=None,
                         help="video beside the --render strip: gif (default, Pillow) or mp4 (needs imageio and "
                              "imageio-ffmpeg: pip install 'match_jax[video]')")
+    argv, env_flags = list(sys.argv[1:] if argv is None else argv), []
+    if any(token.startswith("--env.") for token in argv):
+        from match_jax.envs import FPiHConfig
+
+        argv, env_flags = split_field_flags(argv, {"env": FPiHConfig()})
     args = parser.parse_args(argv)
+    args.env_config = None
     if (args.run_dir is None) == (args.baseline is None):
         parser.error("give either a RUN_DIR or --baseline spiral|pose")
     if args.episodes < 1:
@@ -88,6 +97,20 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.video_format is not None and args.render is None:
         parser.error("--video-format needs --render PATH (the video is written beside the strip)")
     args.video_format = args.video_format or "gif"
+    if env_flags:  # the run's task config with those fields replaced, checked before any work
+        if args.run_dir is None:
+            parser.error(f"{env_flags[0]}: --env.FIELD flags replace fields of a run's task config; not with "
+                         "--baseline")
+        from match_jax.training.runs import RunError, load_spec
+
+        try:
+            env = load_spec(args.run_dir).env
+            args.env_config = parse_fields({"env": env}, env_flags, "eval.py")["env"]
+        except (RunError, ValueError) as err:
+            parser.error(str(err))
+        if (args.env_config.control, args.env_config.observe_torque) != (env.control, env.observe_torque):
+            parser.error("--env.control and --env.observe-torque must stay the run's: its policies act and observe "
+                         "through them")
     return args
 
 
@@ -117,7 +140,7 @@ def evaluate_run_dir(args) -> dict:
     noise_type = args.noise_type or ("shell" if args.noise_sweep is not None else None)
     results = evaluate_run_grid(args.run_dir, args.episodes, levels, noise_type,
                                 None if break_force is None else [break_force], args.checkpoint, 1000 + args.seed,
-                                physics_backend=args.physics_backend)
+                                physics_backend=args.physics_backend, env_config=args.env_config)
     for result in results:
         print(format_result(result, all_columns=args.all_columns))
     return results[0] if args.noise_sweep is None else {"noise_sweep": results}
@@ -154,6 +177,12 @@ def render_episode(args) -> None:
 
         run, policy_params = load_policy(args.run_dir, 0, args.checkpoint, args.physics_backend)
         env = run.env
+        if args.env_config is not None:
+            import dataclasses
+
+            from match_jax.envs import FPiHEnv
+
+            env = FPiHEnv(dataclasses.replace(args.env_config, physics_backend=env.config.physics_backend))
         policy = deterministic_policy(run.trainer)
         policy_state = (policy_params["params"], policy_params["policy_stats"])
         title = render.run_title(run.spec, args.run_dir, 0, args.checkpoint)

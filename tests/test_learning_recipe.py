@@ -1,6 +1,6 @@
 """The pieces of the authors' learning recipe, each a PPOConfig / NetworkConfig field: separate step sizes,
 critic steps per minibatch, the per-update KL stop, the Huber value loss, return normalisation, the
-initialisation; the responsive start of every squashed action component; `--set` overrides."""
+initialisation; the responsive start of every squashed action component."""
 
 import match_jax  # noqa: F401
 
@@ -18,7 +18,6 @@ from match_jax.rl.distributions import make_distribution
 from match_jax.envs import FPiHConfig
 from match_jax.envs.point_mass import PointMassEnv
 from match_jax.rl.networks import Actor, Critic, NetworkConfig
-from match_jax.training.overrides import apply_overrides
 from match_jax.rl.ppo import (PPOConfig, apply_gradients, initial_mean_bias, make_optimizer, make_trainer,
                            to_critic_units, to_return_units)
 from match_jax.training.presets import PRESETS, get_preset
@@ -166,18 +165,3 @@ def test_authors_preset_holds_their_recipe():
     assert (net.actor_hidden, net.actor_blocks, net.critic_hidden, net.critic_blocks) == (512, 2, 1024, 4)
     assert (net.initial_log_std, net.initial_force_z, net.critic_init_value) == (0.0, None, 12.5)
     assert math.log(net.initial_p_position / (1 - net.initial_p_position)) == pytest.approx(2.5)
-
-
-def test_set_overrides_parse_by_field_type():
-    base = get_preset("cpu", method="match")
-    cfg = apply_overrides(base, ["critic_steps=2", "value_loss=huber", "kl_threshold=0.05", "normalize_returns=true",
-                                 "network.head_scale=0.14", "network.initial_force_z=none", "critic-learning-rate=1e-5"])
-    assert (cfg.critic_steps, cfg.value_loss, cfg.kl_threshold, cfg.normalize_returns) == (2, "huber", 0.05, True)
-    assert (cfg.network.head_scale, cfg.network.initial_force_z, cfg.critic_lr) == (0.14, None, 1e-5)
-    assert cfg.network.actor_hidden == base.network.actor_hidden  # the rest of the preset stays
-    for bad, match in [("critic_steps=two", "expected an integer, got 'two'"), ("nope=1", "unknown field 'nope'"),
-                       ("critic_steps", "FIELD=VALUE"), ("critic_steps=0", "critic_steps must be a positive"),
-                       ("value_loss=l1", "value_loss must be"), ("normalize_returns=maybe", "true or false"),
-                       ("network=1", "unknown field 'network'")]:
-        with pytest.raises(ValueError, match=match):
-            apply_overrides(base, [bad])

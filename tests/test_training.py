@@ -333,9 +333,9 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
         ["--method", "match", "--total-steps", "0", "--out", str(tmp_path / "a")])
     assert "--time-budget-min must be a positive number of minutes, got -1.0" in error_of(
         ["--method", "match", "--time-budget-min", "-1", "--out", str(tmp_path / "a")])
-    assert "--learning-rate-end must be a finite number >= 0, got -0.001" in error_of(
+    assert "learning_rate_end must be a finite number >= 0 or None, got -0.001" in error_of(
         ["--method", "match", "--learning-rate-end=-1e-3", "--out", str(tmp_path / "a")])
-    assert "--initial-log-std must be in (-5, 1) (the actor's log-std bounds), got 2.0" in error_of(
+    assert "initial_log_std must be in (-5, 1) (min_log_std, max_log_std), got 2.0" in error_of(
         ["--method", "match", "--initial-log-std", "2", "--out", str(tmp_path / "a")])
     assert "--resume continues the run as its config.json defines it; --learning-rate cannot change it" in error_of(
         ["--resume", "--learning-rate", "1e-3", "--out", str(tmp_path / "a")])
@@ -627,13 +627,14 @@ def test_train_cli_network_flags(tmp_path, capsys):
     adaptive = train_cli.build_spec(train_cli.parse_args(
         ["--method", "match", "--learning-rate", "1e-3", "--desired-kl", "0.01", "--out", str(tmp_path)])).ppo
     assert (adaptive.learning_rate, adaptive.desired_kl, adaptive.learning_rate_end) == (1e-3, 0.01, None)
-    for flag, value, message in (("--critic-hidden", "0", "--critic-hidden must be a positive integer, got 0"),
-                                 ("--actor-blocks", "-1", "--actor-blocks must be an integer >= 0, got -1"),
-                                 ("--initial-p-position", "1", "--initial-p-position must be in (0, 1), got 1.0"),
+    for flag, value, message in (("--critic-hidden", "0", "critic_hidden must be an integer >= 1, got 0"),
+                                 ("--actor-blocks", "-1", "actor_blocks must be an integer >= 0, got -1"),
+                                 ("--initial-p-position", "1", "initial_p_position must be in (0, 1), got 1.0"),
                                  ("--initial-force-z", "5", "--initial-force-z must be in [-20, 0] N"),
-                                 ("--gamma", "1.5", "--gamma must be in [0, 1], got 1.5"),
-                                 ("--gae-lambda", "-0.1", "--gae-lambda must be in [0, 1], got -0.1"),
-                                 ("--desired-kl", "nan", "--desired-kl must be a finite number > 0, got nan")):
+                                 ("--gamma", "1.5", "gamma must be in [0, 1], got 1.5"),
+                                 ("--gae-lambda", "-0.1", "gae_lambda must be in [0, 1], got -0.1"),
+                                 ("--desired-kl", "nan", "desired_kl must be a finite number > 0 or None, got nan"),
+                                 ("--actor-hidden", "x", "--ppo.network.actor-hidden: invalid literal for int()")):
         with pytest.raises(SystemExit):
             train_cli.parse_args(["--method", "match", flag, value, "--out", str(tmp_path)])
         assert message in capsys.readouterr().err.strip().splitlines()[-1]
@@ -653,9 +654,12 @@ def test_train_cli_contact_timeconst_and_set(tmp_path, capsys):
          "--set", "network.head_scale=0.14", "--out", str(tmp_path)]))
     assert (spec.ppo.learning_rate, spec.ppo.critic_steps, spec.ppo.value_loss) == (1e-5, 2, "huber")
     assert spec.ppo.network == dataclasses.replace(default.ppo.network, head_scale=0.14)
-    for argv, message in ((["--contact-timeconst", "0"], "--contact-timeconst must be a finite number of seconds > 0"),
-                          (["--set", "critic_steps=x"], "--set critic_steps: expected an integer, got 'x'"),
-                          (["--set", "kl_threshold=-1"], "kl_threshold must be a finite number > 0 or None")):
+    for argv, message in ((["--contact-timeconst", "0"], "contact_timeconst must be a finite number > 0 s, got 0.0"),
+                          (["--set", "critic_steps=x"], "--ppo.critic-steps: invalid literal for int()"),
+                          (["--set", "kl_threshold=-1"], "kl_threshold must be a finite number > 0 or None"),
+                          (["--set", "critic_steps"], "--set expects FIELD=VALUE, got 'critic_steps'"),
+                          (["--ppo.learning-rat", "1"], "(did you mean --ppo.actor-learning-rate,"),
+                          (["--env.break-sampling", "x"], "break_sampling must be one of ('peak', 'policy_step')")):
         with pytest.raises(SystemExit):
             train_cli.parse_args(["--method", "match", *argv, "--out", str(tmp_path)])
         assert message in capsys.readouterr().err.strip().splitlines()[-1]

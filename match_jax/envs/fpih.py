@@ -57,59 +57,60 @@ class FPiHConfig:
     # MuJoCo Warp only: the most envs one vmapped reset/step holds (its contact buffer is shared by the
     # batch: sim.warp_naconmax). The trainer and the evaluator set it to their batch sizes.
     warp_worlds: int = 1024
-    controller: ControllerConfig = ControllerConfig()
-    actions: ActionConfig = ActionConfig()
+    controller: ControllerConfig = ControllerConfig()  # the task-space control law and its gains
+    actions: ActionConfig = ActionConfig()  # how actions map to targets: scales, ranges, smoothing
     # Timing: policy 15 Hz, control law 120 Hz, physics `physics_substeps` x 120 Hz.
-    control_substeps: int = 8
-    control_dt: float = 1.0 / 120.0
-    physics_substeps: int = 1
-    episode_steps: int = 150
+    control_substeps: int = 8  # control-law steps per policy step
+    control_dt: float = 1.0 / 120.0  # s, one control-law step
+    physics_substeps: int = 1  # physics steps per control-law step
+    episode_steps: int = 150  # policy steps per episode (10 s)
     # Force signal of the force law, the 'policy_step' break check and the force/torque observation:
     # 'wrist' = the wrist force/torque sensor, tared (`match_jax.envs.sensors`; the authors' signal);
     # 'peg_contact' = the sum of the peg's contact forces (no torque). `force_frame`: 'world' = that
     # reading in the world frame, the law's frame; 'hand' = the authors' reading, negated in the hand
     # frame and fed unrotated to the law and the policy (`sensors.authors_reading`: x/y mirrored).
-    force_sensor: str = "wrist"
-    force_frame: str = "world"
+    force_sensor: str = "wrist"  # 'wrist' | 'peg_contact'
+    force_frame: str = "world"  # 'world' | 'hand'
     observe_torque: bool = True  # the policy sees the wrist torque beside the force (6-D, the authors')
     # Break: the episode ends when the force reaches break_force (math.inf = unbreakable), sampled as
     # `break_sampling` says: 'policy_step' = |F| of the force signal read once per policy step, at its end
     # (the authors': the wrist force at 15 Hz); 'peak' = the peg's peak contact |F| over every physics step
     # of the policy step (what a real peg feels).
-    break_force: float = 10.0
-    break_sampling: str = "policy_step"
+    break_force: float = 10.0  # N; inf = unbreakable
+    break_sampling: str = "policy_step"  # 'policy_step' | 'peak'
     # Contact softness: the solref time constant (s) of every peg contact pair, written into the model
     # before it goes to MJX (the scene's value, make_scene.py `solref="0.02 1"`, keeps the model as built;
     # larger is softer; MuJoCo raises values below 2 x the physics timestep to that).
-    contact_timeconst: float = 0.02
+    contact_timeconst: float = 0.02  # s, solref time constant of the peg contacts; larger is softer
     # Per-episode model draws (the peg's pose in the hand; with dynamics ranges, the peg's mass and
     # friction and the controller gains: all shown to the critic only).
-    randomization: ModelRandomization = ModelRandomization()
+    randomization: ModelRandomization = ModelRandomization()  # per-episode model draws
     # Hole placement: nominal bore centre on the table, uniform xy jitter, uniform yaw.
-    hole_xy: tuple[float, float] = (0.55, 0.0)
-    hole_xy_range: float = 0.02
-    hole_yaw_range: float = math.pi
+    hole_xy: tuple[float, float] = (0.55, 0.0)  # m, nominal bore centre on the table
+    hole_xy_range: float = 0.02  # m, half-width of the uniform xy jitter of the hole
+    hole_yaw_range: float = math.pi  # rad, half-width of the uniform hole yaw
     # Spawn: end effector (fingertip frame) `spawn_height` above the hole top, plus noise (gaussian sd /
     # uniform half-width); the height is clipped so the peg tip starts >= `spawn_min_clearance` above it.
-    spawn_height: float = 0.047
-    spawn_min_clearance: float = 0.005
-    spawn_noise: tuple[float, float, float] = (0.02, 0.02, 0.01)
-    spawn_noise_type: str = "uniform"
-    hand_yaw_range: float = 0.785
-    ik_iterations: int = 12
+    spawn_height: float = 0.047  # m, end effector above the hole top at spawn
+    spawn_min_clearance: float = 0.005  # m, least peg-tip height above the hole top at spawn
+    spawn_noise: tuple[float, float, float] = (0.02, 0.02, 0.01)  # m, spawn noise per axis (sd or half-width)
+    spawn_noise_type: str = "uniform"  # 'uniform' | 'gaussian'
+    hand_yaw_range: float = 0.785  # rad, half-width of the uniform hand yaw at spawn
+    ik_iterations: int = 12  # inverse-kinematics iterations of the spawn pose
     # Observation noise: hole position per episode; force and EE position per step.
-    hole_obs_noise: float = 0.001
-    hole_obs_noise_type: str = "gaussian"
-    force_obs_noise: float = 1.0
+    hole_obs_noise: float = 0.001  # m, hole-position observation noise, drawn per episode
+    hole_obs_noise_type: str = "gaussian"  # 'gaussian' (sd) | 'uniform' (half-width)
+    force_obs_noise: float = 1.0  # N, per step
     torque_obs_noise: float = 0.2  # N m
-    ee_pos_obs_noise: float = 0.00025
+    ee_pos_obs_noise: float = 0.00025  # m, per step
     # Success / engagement: peg tip within `success_radius` of the bore axis and below these heights
     # above the hole bottom.
-    success_radius: float = 0.0025
-    success_height: float = 0.001
-    engage_height: float = 0.0225
+    success_radius: float = 0.0025  # m, from the bore axis
+    success_height: float = 0.001  # m, peg tip above the hole bottom for success
+    engage_height: float = 0.0225  # m, peg tip above the hole bottom for engagement
     contact_threshold: float = 1.0  # N, per-axis contact label
-    keypoint_offsets: tuple[float, ...] = (-0.075, -0.025, 0.025, 0.075)
+    keypoint_offsets: tuple[float, ...] = (-0.075, -0.025, 0.025, 0.075)  # m, reward keypoints along the peg axis
+    # (a, b) of each keypoint reward term 1 / (exp(a d) + b + exp(-a d)), d the keypoint distance (m)
     reward_terms: tuple[tuple[float, float], ...] = ((5.0, 4.0), (50.0, 2.0), (100.0, 0.0))
 
     def __post_init__(self):

@@ -18,7 +18,9 @@ An exported suite (--export: report, eval JSONs, best actors) copied into OUT co
 (same configuration, full step budget) and evaluated, so a suite continues from its committed results.
 Writes OUT/runs/<name>/ (training), OUT/eval/<name>.json, and OUT/REPORT.md with learning_curves.png,
 noise_robustness.png, unbreakable_robustness.png and selection_profile.png (`match_jax.experiments.report`). The runs and their
-settings: `match_jax.experiments.suite`.
+settings: `match_jax.experiments.suite`. Every --ppo.FIELD and --env.FIELD flag of train.py (its --help
+lists them), and its short names --learning-rate, --gamma, --initial-force-z, ..., apply to every run,
+after the run's method and task settings.
 """
 
 from __future__ import annotations
@@ -35,14 +37,22 @@ import match_jax  # noqa: F401  (fast XLA CPU flag)
 from match_jax.training import checkpoints
 from match_jax import compile_cache
 from match_jax.training.checkpoints import CheckpointError
-from match_jax.envs.tasks import TASKS
+from match_jax.cli import parse_fields, rewrite_short_names
+from match_jax.envs.tasks import TASKS, task_config
 from match_jax.training.evaluation import evaluate_run_grid
 from match_jax.experiments.report import (_table1_lines, _unbreakable_lines, early_training, episode_window,  # noqa: F401
                               learning_curves, metric_arrays, write_report)
 from match_jax.experiments.suite import (HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, SuiteRun,  # noqa: F401
                              run_spec, suite_runs, sweep_noise_type, unbreakable)
+from match_jax.training.presets import get_preset
 from match_jax.training.runs import (ACTORS_DIR, RunError, RunSpec, actor_path, best_record, export_actors, is_exported,
                                 load_spec, read_metrics, record_path, train)
+
+# train.py's short names of config fields (`train.SHORT_NAMES`), the suite's own flags aside
+SHORT_NAMES = {f"--{path.rpartition('.')[2].replace('_', '-')}": path for path in (
+    "ppo.learning_rate", "ppo.gamma", "ppo.gae_lambda", "ppo.network.initial_force_z", "ppo.network.initial_log_std",
+    "ppo.num_envs", "ppo.minibatches", "ppo.epochs", "env.contact_timeconst")}
+
 
 def train_one(cfg: SuiteConfig, name: str, log=print) -> bool:
     """Train (or resume) suite run `name` for its budget or cfg.time_budget_min; whether it is finished."""
@@ -226,17 +236,13 @@ def parse_args(argv=None) -> SuiteConfig:
                         help="copy the report, its figures and, per evaluated run (as soon as it is evaluated), "
                              "its evaluation, config, metrics and best actors (no critic or optimizer state) "
                              "to this folder")
-    parser.add_argument("--learning-rate", type=float, default=None, help="Adam step size of every run (preset's)")
-    parser.add_argument("--gamma", type=float, default=None, help="discount per policy step of every run (preset's)")
-    parser.add_argument("--initial-force-z", type=float, default=None,
-                        help="hybrid runs: the untrained policy's force-z target, N (preset's)")
     parser.add_argument("--physics-backend", choices=["jax", "warp"], default="jax",
                         help="physics of every run: MJX's JAX backend or MuJoCo Warp (pip install 'match_jax[warp]')")
     parser.add_argument("--smoke", action="store_true", help="tiny preset, 2 seeds, 2 episodes: every stage, fast")
     parser.add_argument("--selection-not-in-ratio", action="store_true",
                         help="MATCH (with SSL) leaves the selection term out of the PPO ratio (the authors' code); "
                              "MATCH no-SSL keeps it, as its selection has no other training signal")
-    args = parser.parse_args(argv)
+    args, config_flags = parser.parse_known_args(argv)
     only = suite_runs(args.task) if args.only is None else tuple(x for x in args.only.split(",") if x)
     unknown = [x for x in only if x not in SUITE]
     if unknown or not only:
@@ -252,18 +258,22 @@ def parse_args(argv=None) -> SuiteConfig:
         parser.error(f"{' and '.join(modes)} exclude each other")
     if args.train_only and args.export is not None:
         parser.error("--export needs the report: it does not go with --train-only")
-    if args.learning_rate is not None and not (args.learning_rate > 0 and math.isfinite(args.learning_rate)):
-        parser.error(f"--learning-rate must be a finite number > 0, got {args.learning_rate}")
-    if args.gamma is not None and not 0 <= args.gamma <= 1:
-        parser.error(f"--gamma must be in [0, 1], got {args.gamma}")
+    config_flags = rewrite_short_names(config_flags, SHORT_NAMES)
+    fixed = [t for t in config_flags if t.split("=")[0] in ("--ppo.method", "--env.control")]
+    if fixed:
+        parser.error(f"{fixed[0]}: every suite run has its own method and controller")
+    try:  # every flag parses and the configs accept it, before any work (here on MATCH's configs)
+        ppo = get_preset(args.preset, method="match")
+        parse_fields({"ppo": ppo, "env": task_config(args.task, ppo.control)}, config_flags, parser.prog)
+    except ValueError as err:
+        parser.error(str(err))
     if args.physics_backend == "warp":
         from match_jax.envs import sim
 
         if not sim.warp_installed():
             parser.error(f"--physics-backend warp {sim.WARP_MISSING}")
     common = dict(out=args.out, export=args.export, only=only, selection_in_ratio=not args.selection_not_in_ratio,
-                  task=args.task, learning_rate=args.learning_rate, gamma=args.gamma,
-                  initial_force_z=args.initial_force_z, physics_backend=args.physics_backend,
+                  task=args.task, config_flags=tuple(config_flags), physics_backend=args.physics_backend,
                   time_budget_min=args.time_budget_min, skip_training=args.skip_training,
                   train_only=args.train_only, report_only=args.report_only)
     sizes = (dict(preset="tiny", seeds=2, total_steps=None, episodes=2, sweep_episodes=2, smoke=True) if args.smoke

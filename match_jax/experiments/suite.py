@@ -8,6 +8,7 @@ import math
 import pathlib
 from typing import NamedTuple
 
+from match_jax.cli import parse_fields
 from match_jax.envs.tasks import TASKS, task_config
 from match_jax.training.presets import get_preset
 from match_jax.training.runs import RunSpec
@@ -89,10 +90,9 @@ class SuiteConfig:
     train_only: bool = False  # train (or resume) the runs, evaluate and report nothing
     report_only: bool = False  # report (and export) the current evaluations that exist, train and evaluate nothing
     export: pathlib.Path | None = None  # copy the report, evaluations and best actors here (`export_suite`)
-    # Learning settings replacing the preset's for every run (None: the preset's), as train.py's flags do.
-    learning_rate: float | None = None
-    gamma: float | None = None
-    initial_force_z: float | None = None
+    # Config-field flags applied to every run after its method and task settings, as train.py's are:
+    # ('--ppo.learning-rate', '1e-5', '--env.contact-timeconst', '0.05', ...) (`match_jax.cli.parse_fields`).
+    config_flags: tuple[str, ...] = ()
     physics_backend: str = "jax"  # 'jax' (MJX) | 'warp' (MuJoCo Warp) for every run's training and evaluation
 
     @property
@@ -123,12 +123,10 @@ def run_spec(name: str, cfg: SuiteConfig) -> RunSpec:
         overrides["selection_in_ratio"] = False
     if cfg.total_steps is not None:
         overrides["total_steps"] = cfg.total_steps
-    for name in ("learning_rate", "gamma"):
-        if getattr(cfg, name) is not None:
-            overrides[name] = getattr(cfg, name)
     ppo = get_preset(cfg.preset, **overrides)
-    if cfg.initial_force_z is not None:
-        ppo = dataclasses.replace(ppo, network=dataclasses.replace(ppo.network, initial_force_z=cfg.initial_force_z))
     env = task_config(cfg.task, ppo.control, run.force_law, hole_obs_noise=run.noise_mm / 1000.0,
                       break_force=run.break_force, physics_backend=cfg.physics_backend)
+    if cfg.config_flags:
+        configs = parse_fields({"ppo": ppo, "env": env}, list(cfg.config_flags), "python -m match_jax.experiments")
+        ppo, env = configs["ppo"], configs["env"]
     return RunSpec(ppo=ppo, env=env, num_seeds=cfg.seeds, preset=cfg.preset)

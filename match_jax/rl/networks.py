@@ -21,18 +21,18 @@ from match_jax.rl.distributions import INITIAL_P_POSITION, PolicyHead, selection
 class NetworkConfig:
     """Sizes of the SimBa trunks (paper: actor 2 x 256, critic 3 x 1024) and the actor's initial std."""
 
-    actor_hidden: int = 256
-    actor_blocks: int = 2
-    critic_hidden: int = 1024
-    critic_blocks: int = 3
+    actor_hidden: int = 256  # actor SimBa width
+    actor_blocks: int = 2  # actor SimBa residual blocks
+    critic_hidden: int = 1024  # critic SimBa width
+    critic_blocks: int = 3  # critic SimBa residual blocks
     initial_log_std: float = -0.7  # pre-tanh std ~0.5 at the start
     # Hybrid: the force-z target the untrained policy's mean commands (N, robot on environment). A
     # gentle -1 N instead of the mid-range -10 N: early random force selections then do not dive.
     initial_force_z: float | None = -1.0
     # Hybrid: the untrained policy's probability of position control per axis (paper: ~0.93).
     initial_p_position: float = INITIAL_P_POSITION
-    min_log_std: float = -5.0
-    max_log_std: float = 1.0
+    min_log_std: float = -5.0  # lower bound of the actor's pre-tanh log std
+    max_log_std: float = 1.0  # upper bound of the actor's pre-tanh log std
     # orthogonal-init gain of the actor's last layers (means, selection logits); the authors' He-normal
     # init scaled by 0.1 has the same weight scale as a gain of 0.1 x sqrt(2)
     head_scale: float = 0.01
@@ -42,8 +42,9 @@ class NetworkConfig:
     def __post_init__(self):
         for name in ("actor_hidden", "actor_blocks", "critic_hidden", "critic_blocks"):
             value = getattr(self, name)
-            if not (isinstance(value, int) and value >= (1 if "hidden" in name else 0)):
-                raise ValueError(f"NetworkConfig.{name} must be a positive integer, got {value!r}")
+            least = 1 if "hidden" in name else 0
+            if not (isinstance(value, int) and value >= least):
+                raise ValueError(f"NetworkConfig.{name} must be an integer >= {least}, got {value!r}")
         if not 0.0 < self.initial_p_position < 1.0:
             raise ValueError(f"NetworkConfig.initial_p_position must be in (0, 1), got {self.initial_p_position!r}")
         if not 0.0 < self.head_scale < float("inf"):
@@ -53,6 +54,9 @@ class NetworkConfig:
         if not self.min_log_std < self.max_log_std:
             raise ValueError(
                 f"NetworkConfig needs min_log_std < max_log_std, got {self.min_log_std}, {self.max_log_std}")
+        if not self.min_log_std < self.initial_log_std < self.max_log_std:
+            raise ValueError(f"NetworkConfig.initial_log_std must be in ({self.min_log_std:g}, {self.max_log_std:g}) "
+                             f"(min_log_std, max_log_std), got {self.initial_log_std!r}")
 
 
 class SimBaTrunk(nn.Module):

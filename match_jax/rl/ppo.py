@@ -61,13 +61,13 @@ class PPOConfig:
     # which samples the SSL averages over: 'all' (the paper) or 'contact' (only steps with at least one
     # axis in contact: the SSL then only pulls p_force up in contact and leaves free space to PPO; experimental)
     ssl_samples: str = "all"
-    num_envs: int = 256
-    rollout_steps: int = 150
-    total_steps: int = 3_000_000
+    num_envs: int = 256  # parallel envs per seed
+    rollout_steps: int = 150  # env steps per env per PPO iteration
+    total_steps: int = 3_000_000  # env steps per seed, the run's budget
     iterations_per_chunk: int = 4  # iterations per jitted call (between logging / checkpoints)
-    epochs: int = 4
-    minibatches: int = 8
-    learning_rate: float = 3e-4
+    epochs: int = 4  # passes over the rollout per iteration
+    minibatches: int = 8  # per epoch
+    learning_rate: float = 3e-4  # Adam step size (of both networks unless set apart below)
     # None: a constant step size; else Adam's step size decays linearly from learning_rate to this value
     # over the run's budget (num_iterations x optimizer_steps_per_iteration updates)
     learning_rate_end: float | None = None
@@ -76,20 +76,20 @@ class PPOConfig:
     # is above 2 x desired_kl, multiplied by it when below desired_kl / 2, and kept in [KL_LR_MIN, KL_LR_MAX];
     # it starts at learning_rate, is per seed, shared by actor and critic, and lives in the optimizer state
     desired_kl: float | None = None
-    adam_b1: float = 0.9
-    adam_b2: float = 0.999
-    adam_eps: float = 1e-5
+    adam_b1: float = 0.9  # Adam beta1
+    adam_b2: float = 0.999  # Adam beta2
+    adam_eps: float = 1e-5  # Adam epsilon
     # Adam step sizes of the actor and the critic (None: learning_rate); the same schedule scales both
     actor_learning_rate: float | None = None
     critic_learning_rate: float | None = None
     max_grad_norm: float = 0.5  # per network (actor and critic are clipped separately)
-    gamma: float = 0.995
-    gae_lambda: float = 0.95
-    clip_eps: float = 0.2
-    value_coef: float = 0.5
-    entropy_coef: float = 0.0
-    reward_scale: float = 0.25
-    normalize_advantages: bool = True
+    gamma: float = 0.995  # discount per policy step
+    gae_lambda: float = 0.95  # GAE lambda
+    clip_eps: float = 0.2  # PPO ratio clip
+    value_coef: float = 0.5  # weight of the value loss
+    entropy_coef: float = 0.0  # weight of the entropy bonus
+    reward_scale: float = 0.25  # rewards are multiplied by this before GAE
+    normalize_advantages: bool = True  # per minibatch, to mean 0 and std 1
     # critic Adam steps per minibatch: the joint actor-critic step, then critic_steps - 1 value-loss-only
     # steps on the same minibatch (the authors' value_update_ratio)
     critic_steps: int = 1
@@ -102,7 +102,7 @@ class PPOConfig:
     # the critic predicts returns normalised by their running mean and std (per seed); GAE reads its values
     # back in return units
     normalize_returns: bool = False
-    network: NetworkConfig = NetworkConfig()
+    network: NetworkConfig = NetworkConfig()  # the actor and critic networks
 
     def __post_init__(self):
         if self.method not in METHODS:

@@ -310,7 +310,7 @@ def _grid_rollout(ppo: PPOConfig, env_config: FPiHConfig):
 def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_levels_mm=None,
                       noise_type: str | None = None, break_forces=None, checkpoint: str = "best",
                       seed: int = 1000, return_trajectories: bool = False, noise_specs=None,
-                      physics_backend: str | None = None) -> list[dict]:
+                      physics_backend: str | None = None, env_config: FPiHConfig | None = None) -> list[dict]:
     """Evaluate every seed of a run at several noise levels and break thresholds in ONE compiled rollout.
 
     The rollout runs unbreakable; a break threshold is applied afterwards (identical up to the first
@@ -320,11 +320,19 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     its break threshold. `noise_specs`, a list of (level mm, 'gaussian' | 'uniform'), replaces
     noise_levels_mm / noise_type to mix noise types in the same compiled rollout. Returns one result
     dict (see `evaluate_run`) per (noise level, break force). `physics_backend` ('jax' | 'warp'; None: the
-    run's own) evaluates the policies on that physics backend.
+    run's own) evaluates the policies on that physics backend. `env_config` (None: the run's) replaces the
+    run's task config, e.g. with a softer contact; it must keep the run's controller and observations.
     """
     if not (isinstance(episodes, int) and episodes >= 1):
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
-    spec = on_backend(load_spec(run_dir), physics_backend)
+    spec = load_spec(run_dir)
+    if env_config is not None:
+        if env_config.control != spec.env.control or env_config.observe_torque != spec.env.observe_torque:
+            raise ValueError(f"the run's policies need control={spec.env.control!r} and observe_torque="
+                             f"{spec.env.observe_torque}; the env to evaluate them on has {env_config.control!r} "
+                             f"and {env_config.observe_torque}")
+        spec = dataclasses.replace(spec, env=env_config)
+    spec = on_backend(spec, physics_backend)
     if noise_specs is None:
         levels = [spec.env.hole_obs_noise * 1000.0] if noise_levels_mm is None else [float(x) for x in noise_levels_mm]
         noise_specs = [(level, noise_type or spec.env.hole_obs_noise_type) for level in levels]

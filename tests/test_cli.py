@@ -1,0 +1,154 @@
+"""The config-field flags: every field of the learning and task configs is a flag that tyro derives
+(`--ppo.FIELD`, `--env.controller.FIELD`, ...), train.py's short names and --set are the same flags,
+and a bad flag or value is one line."""
+
+import dataclasses
+import pathlib
+
+import pytest
+
+import train as train_cli
+from match_jax.cli import FieldError, field_flag, fields_help, parse_fields, rewrite_short_names, set_assignments
+from match_jax.envs.tasks import task_config
+from match_jax.training.presets import get_preset
+
+
+def _defaults():
+    ppo = get_preset("cpu", method="match")
+    return {"ppo": ppo, "env": task_config("authors", ppo.control)}
+
+
+def _leaves(config, prefix):
+    """(field path, value) of every non-dataclass field of `config`, nested configs walked."""
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        if dataclasses.is_dataclass(value):
+            yield from _leaves(value, f"{prefix}.{field.name}")
+        else:
+            yield f"{prefix}.{field.name}", value
+
+
+def _tokens(value):
+    if value is None:
+        return ["None"]
+    if isinstance(value, tuple):
+        return [str(x) for v in value for x in _tokens(v)]
+    return [str(value)]
+
+
+def test_every_config_field_is_a_flag_that_reads_its_own_value_back():
+    defaults = _defaults()
+    leaves = [leaf for name, config in defaults.items() for leaf in _leaves(config, name)]
+    assert len(leaves) > 80  # PPOConfig, NetworkConfig, FPiHConfig, ControllerConfig, ActionConfig, ...
+    tokens = [token for path, value in leaves for token in [field_flag(path), *_tokens(value)]]
+    assert parse_fields(defaults, tokens, "train.py") == defaults
+    help_text = fields_help(defaults, "train.py")
+    missing = [path for path, _ in leaves if field_flag(path) + " " not in help_text]
+    assert not missing, missing
+
+
+def test_field_flags_replace_exactly_their_fields_nested_tuples_and_none_included():
+    defaults = _defaults()
+    ppo, env = defaults["ppo"], defaults["env"]
+    parsed = parse_fields(defaults, [
+        "--ppo.network.head-scale", "0.2", "--ppo.kl-threshold", "0.05", "--ppo.normalize-returns", "true",
+        "--env.controller.force-gain", "0.3", "--env.randomization.peg-mass-scale", "0.8", "1.2",
+        "--env.spawn-noise", "0.01", "0.01", "0.005", "--env.reward-terms", "5", "4", "50", "2",
+        "--env.break-force", "inf", "--ppo.network.initial-force-z", "none"], "train.py")
+    assert parsed["ppo"] == dataclasses.replace(
+        ppo, kl_threshold=0.05, normalize_returns=True,
+        network=dataclasses.replace(ppo.network, head_scale=0.2, initial_force_z=None))
+    assert parsed["env"] == dataclasses.replace(
+        env, controller=dataclasses.replace(env.controller, force_gain=0.3),
+        randomization=dataclasses.replace(env.randomization, peg_mass_scale=(0.8, 1.2)),
+        spawn_noise=(0.01, 0.01, 0.005), reward_terms=((5.0, 4.0), (50.0, 2.0)), break_force=float("inf"))
+
+
+def test_short_names_and_set_are_the_field_flags():
+    paths = {path for name, config in _defaults().items() for path, _ in _leaves(config, name)}
+    assert set(train_cli.SHORT_NAMES.values()) <= paths
+    assert rewrite_short_names(["--learning-rate=1e-5", "--gamma", "0.9", "--out", "x"], train_cli.SHORT_NAMES) == [
+        "--ppo.learning-rate", "1e-5", "--ppo.gamma", "0.9", "--out", "x"]
+    assert set_assignments(["critic_steps=2", "network.head_scale=0.14", "adam_eps=1e-8"], "ppo") == [
+        "--ppo.critic-steps", "2", "--ppo.network.head-scale", "0.14", "--ppo.adam-eps", "1e-8"]
+    short = train_cli.parse_args(["--method", "match", "--learning-rate", "1e-5", "--critic-blocks", "3",
+                                  "--break-force", "inf", "--spawn-noise", "gaussian", "--out", "x"])
+    full = train_cli.parse_args(["--method", "match", "--ppo.learning-rate", "1e-5", "--ppo.network.critic-blocks", "3",
+                                 "--env.break-force", "inf", "--env.spawn-noise-type", "gaussian", "--out", "x"])
+    assert (short.ppo, short.env) == (full.ppo, full.env)
+    assert full.ppo.learning_rate == 1e-5 and full.env.spawn_noise_type == "gaussian"
+
+
+def test_set_assignments_parse_by_field_type():
+    defaults = _defaults()
+    base = defaults["ppo"]
+    cfg = parse_fields(defaults, set_assignments(
+        ["critic_steps=2", "value_loss=huber", "kl_threshold=0.05", "normalize_returns=true", "network.head_scale=0.14",
+         "network.initial_force_z=none", "critic_learning_rate=1e-5"], "ppo"), "train.py")["ppo"]
+    assert (cfg.critic_steps, cfg.value_loss, cfg.kl_threshold, cfg.normalize_returns) == (2, "huber", 0.05, True)
+    assert (cfg.network.head_scale, cfg.network.initial_force_z, cfg.critic_lr) == (0.14, None, 1e-5)
+    assert cfg.network.actor_hidden == base.network.actor_hidden  # the rest of the preset stays
+    for bad, match in [("critic_steps=two", "--ppo.critic-steps: invalid literal for int"),
+                       ("nope=1", "Unrecognized options: --ppo.nope"), ("critic_steps", "FIELD=VALUE"),
+                       ("critic_steps=0", "critic_steps must be a positive"), ("value_loss=l1", "value_loss must be"),
+                       ("normalize_returns=maybe", "invalid choice 'maybe'"), ("network=1", "Unrecognized options")]:
+        with pytest.raises(FieldError, match=match) as error:
+            parse_fields(defaults, set_assignments([bad], "ppo"), "train.py")
+        assert "\n" not in str(error.value)
+
+
+def test_suite_config_flags_apply_to_every_run_after_its_own_settings(tmp_path, capsys):
+    from match_jax.experiments.pipeline import parse_args
+    from match_jax.experiments.suite import run_spec
+
+    cfg = parse_args(["--out", str(tmp_path), "--learning-rate", "1e-3", "--initial-force-z", "-1",
+                      "--env.contact-timeconst", "0.05", "--ppo.network.critic-blocks", "3"])
+    plain = parse_args(["--out", str(tmp_path)])
+    for name in ("pose", "match_nossl", "pose_unbreakable"):
+        spec, base = run_spec(name, cfg), run_spec(name, plain)
+        assert spec.ppo == dataclasses.replace(base.ppo, learning_rate=1e-3, network=dataclasses.replace(
+            base.ppo.network, initial_force_z=-1.0, critic_blocks=3)), name
+        assert spec.env == dataclasses.replace(base.env, contact_timeconst=0.05), name  # break force, noise: the run's
+    for argv, message in ((["--gamma", "2"], "gamma must be in [0, 1], got 2.0"),
+                          (["--ppo.method", "pose"], "--ppo.method: every suite run has its own method"),
+                          (["--nope"], "Unrecognized options: --nope")):
+        with pytest.raises(SystemExit):
+            parse_args(["--out", str(tmp_path), *argv])
+        assert message in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+SHIPPED_RUN = pathlib.Path(__file__).resolve().parents[1] / "results" / "suite_authors" / "runs" / "pose"
+
+
+def test_eval_env_flags_replace_the_runs_task_config_before_any_work(monkeypatch, capsys):
+    import eval as eval_cli
+    from match_jax.training import evaluation
+    from match_jax.training.runs import load_spec
+
+    run_env = load_spec(SHIPPED_RUN).env
+    args = eval_cli.parse_args(["--env.contact-timeconst", "0.05", str(SHIPPED_RUN), "--env.controller.force-gain",
+                                "0.3", "--episodes", "2"])
+    assert (args.run_dir, args.episodes) == (SHIPPED_RUN, 2)
+    assert args.env_config == dataclasses.replace(run_env, contact_timeconst=0.05,
+                                                  controller=dataclasses.replace(run_env.controller, force_gain=0.3))
+    assert eval_cli.parse_args([str(SHIPPED_RUN)]).env_config is None
+
+    class Evaluated(Exception):
+        pass
+
+    def grid_rollout(ppo, env_config):  # the evaluation's env, caught before anything compiles
+        raise Evaluated(env_config)
+
+    monkeypatch.setattr(evaluation, "_grid_rollout", grid_rollout)
+    with pytest.raises(Evaluated) as evaluated:
+        evaluation.evaluate_run_grid(SHIPPED_RUN, 2, env_config=args.env_config)
+    assert evaluated.value.args[0].contact_timeconst == 0.05
+    with pytest.raises(ValueError, match="the run's policies need control='pose'"):
+        evaluation.evaluate_run_grid(SHIPPED_RUN, 2, env_config=dataclasses.replace(run_env, control="hybrid"))
+    for argv, message in (([str(SHIPPED_RUN), "--env.contact-timeconst", "x"],
+                           "--env.contact-timeconst: could not convert string to float: 'x'"),
+                          (["--baseline", "spiral", "--env.break-force", "5"], "not with --baseline"),
+                          ([str(SHIPPED_RUN), "--env.control", "hybrid"], "--env.control and --env.observe-torque")):
+        with pytest.raises(SystemExit):
+            eval_cli.parse_args(argv)
+        assert message in capsys.readouterr().err.strip().splitlines()[-1]
