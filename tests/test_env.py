@@ -26,7 +26,8 @@ def _signature(tree):
     return jax.tree_util.tree_map(lambda x: (x.shape, x.dtype), tree)
 
 
-@pytest.mark.parametrize("batch", [1, 64])
+# batch 64 is the program the tests below reuse; batch 1 compiles its own (~90 s): with -m slow
+@pytest.mark.parametrize("batch", [pytest.param(1, marks=pytest.mark.slow), 64])
 def test_jit_vmap_shapes_and_dtypes_are_fixed(env, batched, batch):
     reset, step = batched
     state = reset(jax.random.split(jax.random.PRNGKey(1), batch))
