@@ -3,6 +3,7 @@
     python train.py --method match --preset cpu --out runs/match_cpu
     python train.py --method pose --preset cpu --seeds 3 --total-steps 2000000 --out runs/pose_cpu
     python train.py --method match --no-ssl --preset paper --seeds 5 --out runs/match_nossl
+    python train.py --method match --ppo.critic-steps 2 --env.contact-timeconst 0.05 --out runs/m  # any config field
     python train.py --resume --out runs/match_cpu          # continue an interrupted run
     python train.py --resume --total-steps 8000000 --out runs/match_cpu   # train a finished run further
 
@@ -22,22 +23,13 @@ import pathlib
 import sys
 
 import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
-from match_jax.cli import field_flag
+from match_jax.cli import SHORT_NAMES, field_flag
 
 METHODS = ("pose", "vices", "hybrid", "match")
 TASKS = ("authors", "earlier")  # match_jax.envs.tasks.TASKS
 DYNAMICS = ("stable", "authors")  # match_jax.envs.randomization.DYNAMICS_PRESETS
 RESUME_FLAGS = ("resume", "out", "total_steps", "max_chunks", "time_budget_min", "no_progress",
                 "tensorboard")  # apply with --resume
-# Short names of config fields users set often: each is the same as its --ppo.FIELD / --env.FIELD flag.
-SHORT_NAMES = {f"--{path.rpartition('.')[2].replace('_', '-')}": path for path in (
-    "ppo.num_envs", "ppo.rollout_steps", "ppo.epochs", "ppo.minibatches", "ppo.iterations_per_chunk",
-    "ppo.learning_rate", "ppo.learning_rate_end", "ppo.desired_kl", "ppo.gamma", "ppo.gae_lambda", "ppo.ssl_coef",
-    "ppo.network.actor_hidden", "ppo.network.actor_blocks", "ppo.network.critic_hidden",
-    "ppo.network.critic_blocks", "ppo.network.initial_log_std", "ppo.network.initial_p_position",
-    "ppo.network.initial_force_z", "env.break_force", "env.contact_timeconst", "env.break_sampling",
-    "env.force_frame", "env.physics_backend")}
-SHORT_NAMES["--spawn-noise"] = "env.spawn_noise_type"
 
 EPILOG = """config fields:
   Every field of the learning config (PPOConfig, its network NetworkConfig) and of the task config
@@ -132,6 +124,14 @@ def parse_args(argv=None) -> argparse.Namespace:
 
     parser = _parser()
     args, rest = parser.parse_known_args(argv)
+    for name in ("seeds", "total_steps", "max_chunks"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
+    if args.time_budget_min is not None and not (args.time_budget_min > 0 and math.isfinite(args.time_budget_min)):
+        parser.error(f"--time-budget-min must be a positive number of minutes, got {args.time_budget_min}")
+    if args.hole_noise_mm is not None and not (args.hole_noise_mm >= 0 and math.isfinite(args.hole_noise_mm)):
+        parser.error(f"--hole-noise-mm must be a finite number >= 0, got {args.hole_noise_mm}")
     if args.help:
         print(parser.format_help())
         print(fields_help(_defaults(args, method=args.method or "match"), "train.py"))
@@ -147,14 +147,6 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "--tensorboard)")
     elif args.method is None:
         parser.error("--method is required (unless --resume)")
-    for name in ("seeds", "total_steps", "max_chunks"):
-        value = getattr(args, name)
-        if value is not None and value < 1:
-            parser.error(f"--{name.replace('_', '-')} must be a positive integer, got {value}")
-    if args.time_budget_min is not None and not (args.time_budget_min > 0 and math.isfinite(args.time_budget_min)):
-        parser.error(f"--time-budget-min must be a positive number of minutes, got {args.time_budget_min}")
-    if args.hole_noise_mm is not None and not (args.hole_noise_mm >= 0 and math.isfinite(args.hole_noise_mm)):
-        parser.error(f"--hole-noise-mm must be a finite number >= 0, got {args.hole_noise_mm}")
     if args.resume:
         return args
     try:
@@ -163,6 +155,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     except (FieldError, ValueError) as err:
         parser.error(str(err))
     args.ppo, args.env = configs["ppo"], configs["env"]
+    if args.no_ssl and args.ppo.ssl_coef != 0:
+        parser.error(f"--no-ssl sets the selection loss's weight to 0; --ssl-coef {args.ppo.ssl_coef} contradicts it")
     if args.ppo.method != args.method or args.env.control != args.ppo.control:
         parser.error(f"--method {args.method} sets the method and its controller; --ppo.method and --env.control "
                      "cannot change them")

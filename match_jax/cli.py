@@ -54,6 +54,18 @@ def unwritable(path: str | pathlib.Path, directory: bool = False) -> str | None:
     return None
 
 
+# Short names of the config fields users set most (train.py and the suite): each is the same as its
+# --ppo.FIELD / --env.FIELD flag.
+SHORT_NAMES = {f"--{path.rpartition('.')[2].replace('_', '-')}": path for path in (
+    "ppo.num_envs", "ppo.rollout_steps", "ppo.epochs", "ppo.minibatches", "ppo.iterations_per_chunk",
+    "ppo.learning_rate", "ppo.learning_rate_end", "ppo.desired_kl", "ppo.gamma", "ppo.gae_lambda", "ppo.ssl_coef",
+    "ppo.network.actor_hidden", "ppo.network.actor_blocks", "ppo.network.critic_hidden",
+    "ppo.network.critic_blocks", "ppo.network.initial_log_std", "ppo.network.initial_p_position",
+    "ppo.network.initial_force_z", "env.break_force", "env.contact_timeconst", "env.break_sampling",
+    "env.force_frame", "env.physics_backend")}
+SHORT_NAMES["--spawn-noise"] = "env.spawn_noise_type"
+
+
 class FieldError(ValueError):
     """A config-field flag that does not parse or that its config rejects; str() is one line."""
 
@@ -65,7 +77,7 @@ def _one_line(report: str) -> str:
     rules = [i for i, line in enumerate(lines) if line and set(line) <= set("-─")]
     body = lines[rules[0] + 1:rules[1]] if len(rules) >= 2 else [line for line in lines if line][1:2]
     message = " ".join(line for line in body if line)
-    message = re.sub(r"^Error parsing ", "", re.sub(r"\s+", " ", message))
+    message = re.sub(r"^Error parsing ", "", re.sub(r"\s+", " ", re.sub(r"\[/?bold\]", "", message)))
     _, said, guesses = report.partition("Perhaps you meant:")
     guesses = re.findall(r"^\s*(--[a-z][\w.-]*)", guesses, flags=re.MULTILINE)
     if said and guesses:
@@ -74,9 +86,15 @@ def _one_line(report: str) -> str:
 
 
 def _spelled_for_tyro(tokens: list[str]) -> list[str]:
-    """`tokens` with the values true / false / none written as tyro reads them (True / False / None)."""
-    words = {"true": "True", "false": "False", "none": "None"}
-    return [words.get(t.lower(), t) if not t.startswith("--") else t for t in tokens]
+    """`tokens` with the values true / yes, false / no and none, in any case and in '--flag=value' too,
+    written as tyro reads them (True, False, None)."""
+    words = {"true": "True", "yes": "True", "false": "False", "no": "False", "none": "None"}
+    spelled = []
+    for token in tokens:
+        flag, sep, value = token.partition("=") if token.startswith("--") else ("", "", token)
+        value = words.get(value.lower(), value)
+        spelled.append(f"{flag}={value}" if sep else value if not flag else token)
+    return spelled
 
 
 def parse_fields(defaults: dict[str, object], tokens: list[str], prog: str) -> dict[str, object]:
@@ -149,11 +167,22 @@ def set_assignments(assignments: list[str], group: str) -> list[str]:
     return tokens
 
 
+def _is_value(token: str) -> bool:
+    """Whether `token` can be one of a tuple field's values (a number or None)."""
+    if token.lower() == "none":
+        return True
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
 def split_field_flags(argv: list[str], defaults: dict[str, object]) -> tuple[list[str], list[str]]:
     """(the other arguments, the config-field flags of the groups in `defaults` with their values) of
-    `argv`. A flag takes one value, or '--flag=value'; a tuple field takes the tokens after it up to the
-    next one that starts with '--'."""
-    rest, fields, tuple_values, single_value = [], [], False, False
+    `argv`. A flag takes one value, or '--flag=value'; a tuple field (or one that may be None) takes the
+    numbers after it."""
+    rest, fields, numbers, single_value = [], [], False, False
     for token in argv:
         flag, has_value, _ = token.partition("=")
         group, _, path = flag.removeprefix("--").partition(".")
@@ -161,14 +190,15 @@ def split_field_flags(argv: list[str], defaults: dict[str, object]) -> tuple[lis
             value = defaults[group]
             for name in path.replace("-", "_").split("."):
                 value = getattr(value, name, None)
-            tuple_values, single_value = isinstance(value, tuple), not has_value and not isinstance(value, tuple)
+            numbers = not has_value and (value is None or isinstance(value, tuple))
+            single_value = not has_value and not numbers
             fields.append(token)
-        elif tuple_values and not token.startswith("--"):
+        elif numbers and _is_value(token):
             fields.append(token)
         elif single_value:
             fields.append(token)
             single_value = False
         else:
-            tuple_values = single_value = False
+            numbers = single_value = False
             rest.append(token)
     return rest, fields

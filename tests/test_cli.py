@@ -3,7 +3,9 @@
 and a bad flag or value is one line."""
 
 import dataclasses
+import math
 import pathlib
+import typing
 
 import pytest
 
@@ -36,15 +38,56 @@ def _tokens(value):
     return [str(value)]
 
 
-def test_every_config_field_is_a_flag_that_reads_its_own_value_back():
+def _changed(value, hint):
+    """A value of type `hint` other than `value`, or None where none is made up (strings)."""
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if value is None:
+        if args and typing.get_origin(args[0]) is tuple:
+            return tuple(0.25 * (i + 1) for i in range(len(typing.get_args(args[0]))))
+        return _changed(args[0](1), args[0]) if args else None
+    if isinstance(value, bool):
+        return not value
+    if isinstance(value, int):
+        return value + 1
+    if isinstance(value, float):
+        return 5.0 if math.isinf(value) else round(0.5 * value + 0.0625, 6)
+    if isinstance(value, tuple):
+        return tuple(_changed(v, type(v)) for v in value)
+    return None
+
+
+def test_every_config_field_is_a_flag_that_sets_it_or_that_its_config_refuses():
+    """Each field's flag with another value than the default: the result has that value in that field, or
+    the field's config refuses the value with a one-line error naming the field. A flag read and dropped
+    fails here; so does one missing from the help."""
     defaults = _defaults()
-    leaves = [leaf for name, config in defaults.items() for leaf in _leaves(config, name)]
-    assert len(leaves) > 80  # PPOConfig, NetworkConfig, FPiHConfig, ControllerConfig, ActionConfig, ...
-    tokens = [token for path, value in leaves for token in [field_flag(path), *_tokens(value)]]
-    assert parse_fields(defaults, tokens, "train.py") == defaults
+    set_fields, refused = [], []
+    for group, config in defaults.items():
+        for path, value in _leaves(config, group):
+            owner = config
+            for name in path.split(".")[1:-1]:
+                owner = getattr(owner, name)
+            name = path.rpartition(".")[2]
+            new = _changed(value, typing.get_type_hints(type(owner))[name])
+            if new is None:  # a string field: the named ones are covered below
+                continue
+            try:
+                parsed = parse_fields(defaults, [field_flag(path), *_tokens(new)], "train.py")[group]
+            except FieldError as err:
+                assert "\n" not in str(err), (path, str(err))
+                assert name in str(err) or field_flag(path) in str(err), (path, str(err))
+                refused.append(path)
+                continue
+            for part in path.split(".")[1:]:
+                parsed = getattr(parsed, part)
+            assert parsed == new, (path, parsed, new)
+            set_fields.append(path)
+    assert len(set_fields) > 70 and len(refused) < 10, refused
     help_text = fields_help(defaults, "train.py")
-    missing = [path for path, _ in leaves if field_flag(path) + " " not in help_text]
+    missing = [path for group, config in defaults.items() for path, _ in _leaves(config, group)
+               if field_flag(path) + " " not in help_text]
     assert not missing, missing
+    assert "usage: train.py [-h] [OPTIONS]" not in help_text  # tyro's own usage line is left out
 
 
 def test_field_flags_replace_exactly_their_fields_nested_tuples_and_none_included():
@@ -110,7 +153,7 @@ def test_suite_config_flags_apply_to_every_run_after_its_own_settings(tmp_path, 
             base.ppo.network, initial_force_z=-1.0, critic_blocks=3)), name
         assert spec.env == dataclasses.replace(base.env, contact_timeconst=0.05), name  # break force, noise: the run's
     for argv, message in ((["--gamma", "2"], "gamma must be in [0, 1], got 2.0"),
-                          (["--ppo.method", "pose"], "--ppo.method: every suite run has its own method"),
+                          (["--ppo.method", "pose"], "--ppo.method: the suite sets it per run"),
                           (["--nope"], "Unrecognized options: --nope")):
         with pytest.raises(SystemExit):
             parse_args(["--out", str(tmp_path), *argv])
@@ -152,3 +195,49 @@ def test_eval_env_flags_replace_the_runs_task_config_before_any_work(monkeypatch
         with pytest.raises(SystemExit):
             eval_cli.parse_args(argv)
         assert message in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def test_field_flags_apply_after_the_flags_that_build_the_defaults(tmp_path, capsys):
+    args = train_cli.parse_args(["--method", "match", "--controller", "paper", "--env.controller.use-task-inertia",
+                                 "false", "--hole-noise-mm", "2", "--env.hole-obs-noise=0.003", "--peg-offset-mm",
+                                 "1,0,1", "--env.randomization.peg-offset-range", "0", "0", "0.002",
+                                 "--ppo.normalize-returns=TRUE", "--out", str(tmp_path)])
+    assert not args.env.controller.use_task_inertia and args.env.hole_obs_noise == 0.003
+    assert args.env.randomization.peg_offset_range == (0.0, 0.0, 0.002) and args.ppo.normalize_returns
+    for argv, message in ((["--method", "match", "--no-ssl", "--ssl-coef", "0.5"], "--no-ssl sets the selection"),
+                          (["--resume", "--ppo.gamma", "0.9"], "--ppo.gamma cannot change it"),
+                          (["--help", "--hole-noise-mm", "-1"], "--hole-noise-mm must be a finite number >= 0")):
+        with pytest.raises(SystemExit):
+            train_cli.parse_args([*argv, "--out", str(tmp_path)])
+        assert message in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def test_train_help_lists_the_run_flags_the_short_names_and_every_field_flag(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        train_cli.parse_args(["--help", "--preset", "authors"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    for text in ("--method", "--resume", "--learning-rate = --ppo.learning-rate", "--ppo.network.actor-hidden INT",
+                 "--env.controller.force-gain FLOAT", "Adam epsilon (default: 1e-08)"):  # the authors preset's
+        assert text in out, text
+
+
+def test_suite_refuses_the_fields_that_tell_its_runs_apart_and_checks_smoke_sizes(tmp_path, capsys):
+    from match_jax.experiments.pipeline import parse_args
+
+    for argv, message in ((["--ppo.ssl-coef", "0.3"], "--ppo.ssl-coef: the suite sets it per run"),
+                          (["--break-force", "20"], "--env.break-force: the suite sets it per run"),
+                          (["--smoke", "--minibatches", "3"], "must divide into minibatches (3)")):
+        with pytest.raises(SystemExit):
+            parse_args(["--out", str(tmp_path), *argv])
+        assert message in capsys.readouterr().err.strip().splitlines()[-1]
+
+
+def test_eval_takes_a_run_dir_after_tuple_valued_env_flags():
+    import eval as eval_cli
+
+    args = eval_cli.parse_args(["--env.spawn-noise", "0.01", "0.01", "0.005", str(SHIPPED_RUN),
+                                "--env.randomization.peg-friction", "0.5", "2", "--episodes", "2"])
+    assert args.run_dir == SHIPPED_RUN and args.episodes == 2
+    assert args.env_config.spawn_noise == (0.01, 0.01, 0.005)
+    assert args.env_config.randomization.peg_friction == (0.5, 2.0)

@@ -19,8 +19,9 @@ An exported suite (--export: report, eval JSONs, best actors) copied into OUT co
 Writes OUT/runs/<name>/ (training), OUT/eval/<name>.json, and OUT/REPORT.md with learning_curves.png,
 noise_robustness.png, unbreakable_robustness.png and selection_profile.png (`match_jax.experiments.report`). The runs and their
 settings: `match_jax.experiments.suite`. Every --ppo.FIELD and --env.FIELD flag of train.py (its --help
-lists them), and its short names --learning-rate, --gamma, --initial-force-z, ..., apply to every run,
-after the run's method and task settings.
+lists them) and its short names (--learning-rate, --gamma, --initial-force-z, --contact-timeconst, ...) apply
+to every run, after the run's own settings; the fields that tell the runs apart (method, SSL, break force,
+noise, force law) are refused.
 """
 
 from __future__ import annotations
@@ -37,21 +38,21 @@ import match_jax  # noqa: F401  (fast XLA CPU flag)
 from match_jax.training import checkpoints
 from match_jax import compile_cache
 from match_jax.training.checkpoints import CheckpointError
-from match_jax.cli import parse_fields, rewrite_short_names
-from match_jax.envs.tasks import TASKS, task_config
+from match_jax.cli import SHORT_NAMES, field_flag, rewrite_short_names
+from match_jax.envs.tasks import TASKS
 from match_jax.training.evaluation import evaluate_run_grid
 from match_jax.experiments.report import (_table1_lines, _unbreakable_lines, early_training, episode_window,  # noqa: F401
                               learning_curves, metric_arrays, write_report)
 from match_jax.experiments.suite import (HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, SuiteRun,  # noqa: F401
                              run_spec, suite_runs, sweep_noise_type, unbreakable)
-from match_jax.training.presets import get_preset
 from match_jax.training.runs import (ACTORS_DIR, RunError, RunSpec, actor_path, best_record, export_actors, is_exported,
                                 load_spec, read_metrics, record_path, train)
 
-# train.py's short names of config fields (`train.SHORT_NAMES`), the suite's own flags aside
-SHORT_NAMES = {f"--{path.rpartition('.')[2].replace('_', '-')}": path for path in (
-    "ppo.learning_rate", "ppo.gamma", "ppo.gae_lambda", "ppo.network.initial_force_z", "ppo.network.initial_log_std",
-    "ppo.num_envs", "ppo.minibatches", "ppo.epochs", "env.contact_timeconst")}
+# Config fields that tell the suite's runs apart (method, SSL, break force, noise, force law) or that its own
+# flags set: a config-field flag may not replace them for every run.
+PER_RUN_FIELDS = ("ppo.method", "ppo.ssl_coef", "ppo.selection_in_ratio", "env.control", "env.break_force",
+                  "env.hole_obs_noise", "env.hole_obs_noise_type", "env.physics_backend",
+                  "env.controller.force_feedforward", "env.controller.force_damping")
 
 
 def train_one(cfg: SuiteConfig, name: str, log=print) -> bool:
@@ -259,30 +260,32 @@ def parse_args(argv=None) -> SuiteConfig:
     if args.train_only and args.export is not None:
         parser.error("--export needs the report: it does not go with --train-only")
     config_flags = rewrite_short_names(config_flags, SHORT_NAMES)
-    fixed = [t for t in config_flags if t.split("=")[0] in ("--ppo.method", "--env.control")]
+    fixed = [t.split("=")[0] for t in config_flags if t.split("=")[0] in map(field_flag, PER_RUN_FIELDS)]
     if fixed:
-        parser.error(f"{fixed[0]}: every suite run has its own method and controller")
-    try:  # every flag parses and the configs accept it, before any work (here on MATCH's configs)
-        ppo = get_preset(args.preset, method="match")
-        parse_fields({"ppo": ppo, "env": task_config(args.task, ppo.control)}, config_flags, parser.prog)
-    except ValueError as err:
-        parser.error(str(err))
+        parser.error(f"{fixed[0]}: the suite sets it per run (method, SSL, break force, noise, force law) or with "
+                     "its own flag (--physics-backend, --selection-not-in-ratio)")
     if args.physics_backend == "warp":
         from match_jax.envs import sim
 
         if not sim.warp_installed():
             parser.error(f"--physics-backend warp {sim.WARP_MISSING}")
     common = dict(out=args.out, export=args.export, only=only, selection_in_ratio=not args.selection_not_in_ratio,
-                  task=args.task, config_flags=tuple(config_flags), physics_backend=args.physics_backend,
+                  task=args.task, physics_backend=args.physics_backend,
                   time_budget_min=args.time_budget_min, skip_training=args.skip_training,
                   train_only=args.train_only, report_only=args.report_only)
     sizes = (dict(preset="tiny", seeds=2, total_steps=None, episodes=2, sweep_episodes=2, smoke=True) if args.smoke
              else dict(preset=args.preset, seeds=args.seeds, total_steps=args.total_steps, episodes=args.episodes,
                        sweep_episodes=args.sweep_episodes))
     try:
-        return SuiteConfig(**sizes, **common)
+        cfg = SuiteConfig(**sizes, **common, config_flags=tuple(config_flags))
     except ValueError as err:  # a run that duplicates another on this task (SuiteConfig's check)
         parser.error(f"--only: {err}")
+    try:  # every run's configs accept the config-field flags, before any work
+        for name in cfg.only:
+            run_spec(name, cfg)
+    except ValueError as err:
+        parser.error(str(err))
+    return cfg
 
 
 def main(argv=None) -> int:
