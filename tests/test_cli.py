@@ -39,50 +39,49 @@ def _tokens(value):
 
 
 def _changed(value, hint):
-    """A value of type `hint` other than `value`, or None where none is made up (strings)."""
+    """A valid value of type `hint` other than `value` (halved numbers, doubled counts, flipped booleans), or
+    None for strings (their choices are tested one by one below)."""
     args = [a for a in typing.get_args(hint) if a is not type(None)]
     if value is None:
-        if args and typing.get_origin(args[0]) is tuple:
-            return tuple(0.25 * (i + 1) for i in range(len(typing.get_args(args[0]))))
-        return _changed(args[0](1), args[0]) if args else None
+        if typing.get_origin(args[0]) is tuple:
+            return (0.9, 1.1)
+        return args[0](2) if args[0] is int else 0.5
     if isinstance(value, bool):
         return not value
     if isinstance(value, int):
-        return value + 1
+        return 2 * value if value else 1
     if isinstance(value, float):
-        return 5.0 if math.isinf(value) else round(0.5 * value + 0.0625, 6)
+        return 5.0 if math.isinf(value) else 0.5 * value if value else 0.001
     if isinstance(value, tuple):
         return tuple(_changed(v, type(v)) for v in value)
     return None
 
 
-def test_every_config_field_is_a_flag_that_sets_it_or_that_its_config_refuses():
-    """Each field's flag with another value than the default: the result has that value in that field, or
-    the field's config refuses the value with a one-line error naming the field. A flag read and dropped
-    fails here; so does one missing from the help."""
+def test_every_config_field_is_a_flag_that_sets_it():
+    """Every field's flag at once, each with another value than its default: each value lands in its own
+    field (a flag read and dropped, or written to another field, fails here), and the help lists each flag."""
     defaults = _defaults()
-    set_fields, refused = [], []
+    tokens, expected = [], {}
     for group, config in defaults.items():
         for path, value in _leaves(config, group):
             owner = config
             for name in path.split(".")[1:-1]:
                 owner = getattr(owner, name)
-            name = path.rpartition(".")[2]
-            new = _changed(value, typing.get_type_hints(type(owner))[name])
-            if new is None:  # a string field: the named ones are covered below
-                continue
-            try:
-                parsed = parse_fields(defaults, [field_flag(path), *_tokens(new)], "train.py")[group]
-            except FieldError as err:
-                assert "\n" not in str(err), (path, str(err))
-                assert name in str(err) or field_flag(path) in str(err), (path, str(err))
-                refused.append(path)
-                continue
-            for part in path.split(".")[1:]:
-                parsed = getattr(parsed, part)
-            assert parsed == new, (path, parsed, new)
-            set_fields.append(path)
-    assert len(set_fields) > 70 and len(refused) < 10, refused
+            new = _changed(value, typing.get_type_hints(type(owner))[path.rpartition(".")[2]])
+            if new is not None:
+                tokens += [field_flag(path), *_tokens(new)]
+                expected[path] = new
+    assert len(expected) > 80  # PPOConfig, NetworkConfig, FPiHConfig, ControllerConfig, ActionConfig, ...
+    # desired_kl is a second step-size schedule, which learning_rate_end excludes: it gets its own call
+    alone = tokens.index(field_flag("ppo.desired_kl"))
+    calls = [tokens[:alone] + tokens[alone + 2:], tokens[alone:alone + 2]]
+    got = {}
+    for call in calls:
+        parsed = parse_fields(defaults, call, "train.py")
+        got.update({path: value for group, config in parsed.items() for path, value in _leaves(config, group)
+                    if path in expected and field_flag(path) in call})
+    wrong = {path: (got.get(path), new) for path, new in expected.items() if got.get(path) != new}
+    assert not wrong, wrong
     help_text = fields_help(defaults, "train.py")
     missing = [path for group, config in defaults.items() for path, _ in _leaves(config, group)
                if field_flag(path) + " " not in help_text]
