@@ -97,6 +97,12 @@ def _spelled_for_tyro(tokens: list[str]) -> list[str]:
     return spelled
 
 
+def _groups(defaults: dict[str, object]) -> type:
+    """A frozen dataclass with one field per group of `defaults`, typed as that group's config."""
+    return dataclasses.make_dataclass("ConfigFields", [(name, type(value)) for name, value in defaults.items()],
+                                      frozen=True)
+
+
 def parse_fields(defaults: dict[str, object], tokens: list[str], prog: str) -> dict[str, object]:
     """The frozen dataclass instances in `defaults` (group name -> instance) with the config-field flags in
     `tokens` applied: `--GROUP.FIELD VALUE`, nested as `--ppo.network.actor-hidden 256`, a tuple as its
@@ -105,8 +111,7 @@ def parse_fields(defaults: dict[str, object], tokens: list[str], prog: str) -> d
     configs' own checks run on the result; a bad flag or value raises FieldError with one line."""
     import tyro
 
-    groups = dataclasses.make_dataclass("ConfigFields", [(name, type(value)) for name, value in defaults.items()],
-                                        frozen=True)
+    groups = _groups(defaults)
     report = io.StringIO()
     try:
         with contextlib.redirect_stderr(report), contextlib.redirect_stdout(report):
@@ -122,8 +127,7 @@ def fields_help(defaults: dict[str, object], prog: str) -> str:
     being those instances' values."""
     import tyro
 
-    groups = dataclasses.make_dataclass("ConfigFields", [(name, type(value)) for name, value in defaults.items()],
-                                        frozen=True)
+    groups = _groups(defaults)
     text = io.StringIO()
     with contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
         try:
