@@ -16,7 +16,8 @@ per-iteration training metrics, up to the iteration that crosses `--up-to` env s
   1M env steps;
 - training throughput: env steps of all seeds per second of wall clock, compilation included ('-'
   for a resumed run, whose logged clock restarts; only meaningful for a run alone on the cores).
-Prints a markdown table; `--json` also writes the numbers.
+Prints a markdown table; `--json` also writes the numbers; `--plot FILE.png` draws every run's smoothed
+training success and break rate (mean over seeds) against env steps, in one figure.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import pathlib
 
 import numpy as np
 
+from match_jax.experiments import plots
 from match_jax.experiments.claims import steps_to
 from match_jax.experiments.pipeline import episode_window, metric_arrays
 from match_jax.training.runs import load_spec, read_metrics
@@ -63,6 +65,13 @@ def smoothed(rate: np.ndarray, window: int) -> np.ndarray:
     for j in range(window - 1, rate.shape[1]):
         out[:, j] = np.nanmean(rate[:, j - window + 1:j + 1], axis=1)
     return out
+
+
+def smoothed_curves(curves: dict) -> dict:
+    """A run's success and break rates smoothed as the table reads them, for the figure."""
+    window = curves["window"]
+    return {"env_steps": curves["env_steps"], "success_rate": smoothed(curves["success_rate"], window),
+            "break_rate": smoothed(curves["break_rate"], window)}
 
 
 def summarize(curves: dict) -> dict:
@@ -124,18 +133,25 @@ def main(argv=None) -> int:
     parser.add_argument("runs", nargs="+", help="LABEL=RUN_DIR")
     parser.add_argument("--up-to", type=float, default=1_000_000, help="env steps per seed read (default 1M)")
     parser.add_argument("--json", type=pathlib.Path, default=None, help="also write the numbers here")
+    parser.add_argument("--plot", type=pathlib.Path, default=None, help="also draw the curves into this PNG")
     args = parser.parse_args(argv)
     if not args.up_to > 0:
         parser.error(f"--up-to must be > 0 env steps, got {args.up_to:g}")
-    rows = {}
+    if args.plot is not None and args.plot.suffix != ".png":
+        parser.error(f"--plot must name a .png file, got {str(args.plot)!r}")
+    rows, curves = {}, {}
     for item in args.runs:
         label, sep, path = item.partition("=")
         if not sep or not label or not path:
             parser.error(f"expected LABEL=RUN_DIR, got {item!r}")
         if not pathlib.Path(path).is_dir():
             parser.error(f"run directory {path!r} does not exist")
-        rows[label] = summarize(run_curves(pathlib.Path(path), args.up_to))
+        curves[label] = run_curves(pathlib.Path(path), args.up_to)
+        rows[label] = summarize(curves[label])
     print(table(rows))
+    if args.plot:
+        args.plot.parent.mkdir(parents=True, exist_ok=True)
+        plots.success_and_breaks({label: smoothed_curves(c) for label, c in curves.items()}, args.plot)
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"up_to": args.up_to, "runs": rows}, indent=1) + "\n")

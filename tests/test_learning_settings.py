@@ -3,6 +3,7 @@
 import importlib.util
 import pathlib
 
+import numpy as np
 import pytest
 
 REPO = pathlib.Path(__file__).resolve().parents[1]
@@ -43,3 +44,24 @@ def test_bad_run_argument_is_named(tmp_path, capsys):
     with pytest.raises(SystemExit):
         _benchmark().main([f"x={tmp_path / 'missing'}"])
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_plot_draws_each_runs_success_and_breaks(tmp_path, monkeypatch, capsys):
+    """--plot writes one figure; each panel has one line per run, at 100 x the seeds' mean smoothed rate."""
+    from match_jax.experiments import plots
+
+    monkeypatch.chdir(REPO)
+    bench = _benchmark()
+    runs = {"forcez": "results/learning_screen/forcez", "gae": "results/learning_screen/gae"}
+    out = tmp_path / "screen.png"
+    assert bench.main([f"{k}={v}" for k, v in runs.items()] + ["--plot", str(out)]) == 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    curves = {k: bench.smoothed_curves(bench.run_curves(pathlib.Path(v), 1e6)) for k, v in runs.items()}
+    fig = plots.success_and_breaks_figure(curves)
+    for ax, key in zip(fig.axes, ("success_rate", "break_rate")):
+        assert len(ax.get_lines()) == len(runs)
+        for line, c in zip(ax.get_lines(), curves.values()):
+            np.testing.assert_allclose(line.get_ydata(), 100 * np.nanmean(c[key], axis=0), equal_nan=True)
+    with pytest.raises(SystemExit):
+        bench.main([f"forcez={runs['forcez']}", "--plot", str(tmp_path / "screen.pdf")])
+    assert "--plot must name a .png file, got" in capsys.readouterr().err

@@ -1,6 +1,7 @@
 """Matplotlib figures of the paper's experiments (PNG files; the Agg backend, no display needed).
 
 - learning curves: training success rate vs env steps per method, mean and 95 % CI over seeds;
+- success and breaks: training success and break rate vs env steps per run, side by side;
 - noise robustness: success and break rate vs hole-observation noise (breakable), and success with an
   unbreakable peg;
 - selection profile: the policy's probability of force control per axis over the phase-normalised
@@ -98,6 +99,42 @@ def learning_curves(curves: dict[str, dict], path: str | pathlib.Path, smooth: i
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), handlelength=3)
     ax.set_title("Learning curves (mean over seeds, band: 95 % t-interval clipped to [0, 100] %)")
     fig.tight_layout()
+    fig.savefig(path, dpi=120, bbox_inches="tight")  # the legend sits right of the axes
+    plt.close(fig)
+
+
+def success_and_breaks_figure(curves: dict[str, dict]):
+    """Two panels over env steps per seed: training success and episodes broken (%), one line per run.
+
+    curves: name -> {'env_steps': (I,), 'success_rate': (seeds, I), 'break_rate': (seeds, I)}, rates in
+    [0, 1] already smoothed (NaN where not yet defined); drawn as the mean over seeds with a 95 % band.
+    """
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.2), sharex=True)
+    styles = line_styles(curves)
+    for name, c in curves.items():
+        steps = np.asarray(c["env_steps"])
+        for ax, key in zip(axes, ("success_rate", "break_rate")):
+            rates = np.asarray(c[key], np.float64)
+            mean, half = mean_and_ci95(rates)
+            label = f"{name} ({rates.shape[0]} seeds)" if ax is axes[1] else None
+            ax.plot(steps, 100 * mean, label=label, **styles[name])
+            below, above = clip_interval(100 * mean, 100 * half)
+            ax.fill_between(steps, 100 * mean - below, 100 * mean + above, alpha=0.12, color=styles[name]["color"])
+    for ax, title in zip(axes, ("training success (%)", "episodes broken (%)")):
+        ax.set_xlabel("env steps per seed")
+        ax.xaxis.set_major_formatter(FuncFormatter(_millions))
+        ax.set_ylabel(title)
+        ax.set_ylim(-2, 102)
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), handlelength=3)
+    fig.suptitle("Training success and breaks, mean over seeds (band: 95 % t-interval clipped to [0, 100] %)")
+    fig.tight_layout()
+    return fig
+
+
+def success_and_breaks(curves: dict[str, dict], path: str | pathlib.Path) -> None:
+    """`success_and_breaks_figure` written to a PNG file."""
+    fig = success_and_breaks_figure(curves)
     fig.savefig(path, dpi=120, bbox_inches="tight")  # the legend sits right of the axes
     plt.close(fig)
 
