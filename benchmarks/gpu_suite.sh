@@ -19,8 +19,10 @@
 #   logs.tgz               every process's log and nvidia-smi samples
 # The latest checkpoints (for resuming) hold every env's MJX state (~5 MB per seed) and stay behind.
 # Env variables: SUITE_STEPS (env steps per seed, default 2500000), SEEDS (default 3), ONLY (suite runs,
-# default all twelve), RATIO=code (MATCH with the authors'-code ratio, --selection-not-in-ratio),
-# PAPER=0 (no paper-preset run), MPS=0 (no CUDA MPS daemon), PROBE_S (default 60),
+# default all twelve; ONLY=none: no suite run), RATIO=code (MATCH with the authors'-code ratio,
+# --selection-not-in-ratio), PAPER=0 (no paper-preset run), PAPER_PRESET (the preset of that run, default
+# paper; PAPER_PRESET=authors trains the authors' recipe at their network sizes, still into paper_match),
+# MPS=0 (no CUDA MPS daemon), PROBE_S (default 60),
 # SMOKE=1 (tiny preset: checks the script itself on a CPU), GPU_XLA_FLAGS (added to XLA_FLAGS, e.g.
 # --xla_gpu_autotune_level=0 to cut compilation; untested here).
 set -uo pipefail
@@ -30,12 +32,13 @@ PACK=${3:-$WORK}
 STEPS=${SUITE_STEPS:-2500000}
 RATIO_ARGS=(); [ "${RATIO:-paper}" = code ] && RATIO_ARGS=(--selection-not-in-ratio)
 SEEDS=${SEEDS:-3}
-PRESET=cpu; PAPER_PRESET=paper
+PRESET=cpu; PAPER_PRESET=${PAPER_PRESET:-paper}
 if [ "${SMOKE:-0}" = 1 ]; then PRESET=tiny; PAPER_PRESET=tiny; STEPS=64; fi
 mkdir -p "$WORK/logs" "$PACK"
 source "$(dirname "$0")/gpu_common.sh"
 gpu_start
 NAMES=${ONLY:-pose,vices,hybrid,match,match_damped,match_nossl,hybrid_nossl,pose_noise2.5,pose_unbreakable,vices_unbreakable,hybrid_unbreakable,match_unbreakable}
+[ "$NAMES" = none ] && NAMES=""
 for name in ${NAMES//,/ }; do
   timeout "$KILL_AT" python -m match_jax.experiments --preset "$PRESET" --seeds "$SEEDS" --total-steps "$STEPS" \
     "${RATIO_ARGS[@]}" --out "$WORK/suite" --only "$name" --train-only --time-budget-min "$BUDGET_MIN" \
