@@ -75,6 +75,23 @@ def _millions(x, _pos) -> str:
     return f"{x / 1e6:g}M" if x else "0"
 
 
+def _mean_with_band(ax, steps, rates: np.ndarray, label: str | None, style: dict) -> None:
+    """The seeds' mean rate (rates: (seeds, I) in [0, 1]) in %, with its clipped 95 % t-interval as a band."""
+    mean, half = mean_and_ci95(rates)
+    ax.plot(steps, 100 * mean, label=label, **style)
+    below, above = clip_interval(100 * mean, 100 * half)
+    ax.fill_between(steps, 100 * mean - below, 100 * mean + above, alpha=0.12, color=style["color"])
+
+
+def _rate_axes(ax, ylabel: str) -> None:
+    """A rate (%) panel over env steps per seed."""
+    ax.set_xlabel("env steps per seed")
+    ax.xaxis.set_major_formatter(FuncFormatter(_millions))
+    ax.set_ylabel(ylabel)
+    ax.set_ylim(-2, 102)
+    ax.grid(alpha=0.3)
+
+
 def learning_curves(curves: dict[str, dict], path: str | pathlib.Path, smooth: int = 5) -> None:
     """curves: name -> {'env_steps': (I,), 'success_rate': (seeds, I)}; moving average over `smooth`."""
     fig, ax = plt.subplots(figsize=(10, 4.2))
@@ -87,15 +104,8 @@ def learning_curves(curves: dict[str, dict], path: str | pathlib.Path, smooth: i
             steps = np.asarray(c["env_steps"])[smooth - 1:]
         else:
             steps = np.asarray(c["env_steps"])
-        mean, half = mean_and_ci95(rates)
-        ax.plot(steps, 100 * mean, label=f"{name} ({rates.shape[0]} seeds)", **styles[name])
-        below, above = clip_interval(100 * mean, 100 * half)
-        ax.fill_between(steps, 100 * mean - below, 100 * mean + above, alpha=0.12, color=styles[name]["color"])
-    ax.set_xlabel("env steps per seed")
-    ax.xaxis.set_major_formatter(FuncFormatter(_millions))
-    ax.set_ylabel("training success rate (%)")
-    ax.set_ylim(-2, 102)
-    ax.grid(alpha=0.3)
+        _mean_with_band(ax, steps, rates, f"{name} ({rates.shape[0]} seeds)", styles[name])
+    _rate_axes(ax, "training success rate (%)")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), handlelength=3)
     ax.set_title("Learning curves (mean over seeds, band: 95 % t-interval clipped to [0, 100] %)")
     fig.tight_layout()
@@ -115,17 +125,10 @@ def success_and_breaks_figure(curves: dict[str, dict]):
         steps = np.asarray(c["env_steps"])
         for ax, key in zip(axes, ("success_rate", "break_rate")):
             rates = np.asarray(c[key], np.float64)
-            mean, half = mean_and_ci95(rates)
             label = f"{name} ({rates.shape[0]} seeds)" if ax is axes[1] else None
-            ax.plot(steps, 100 * mean, label=label, **styles[name])
-            below, above = clip_interval(100 * mean, 100 * half)
-            ax.fill_between(steps, 100 * mean - below, 100 * mean + above, alpha=0.12, color=styles[name]["color"])
+            _mean_with_band(ax, steps, rates, label, styles[name])
     for ax, title in zip(axes, ("training success (%)", "episodes broken (%)")):
-        ax.set_xlabel("env steps per seed")
-        ax.xaxis.set_major_formatter(FuncFormatter(_millions))
-        ax.set_ylabel(title)
-        ax.set_ylim(-2, 102)
-        ax.grid(alpha=0.3)
+        _rate_axes(ax, title)
     axes[1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), handlelength=3)
     fig.suptitle("Training success and breaks, mean over seeds (band: 95 % t-interval clipped to [0, 100] %)")
     fig.tight_layout()
