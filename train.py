@@ -26,7 +26,7 @@ import match_jax  # noqa: F401  (sets the fast XLA CPU flag before JAX starts)
 from match_jax.cli import SHORT_NAMES, field_flag
 
 METHODS = ("pose", "vices", "hybrid", "match")
-TASKS = ("authors", "earlier")  # match_jax.envs.tasks.TASKS
+TASKS = ("authors", "earlier", "authors_dr")  # match_jax.envs.tasks.TASKS
 DYNAMICS = ("stable", "authors")  # match_jax.envs.randomization.DYNAMICS_PRESETS
 RESUME_FLAGS = ("resume", "out", "total_steps", "max_chunks", "time_budget_min", "no_progress",
                 "tensorboard")  # apply with --resume
@@ -65,7 +65,9 @@ def _parser():
     parser.add_argument("--task", choices=list(TASKS), default="authors",
                         help="task protocol: 'authors' (default: the authors' task, docs/protocol.md) or 'earlier' "
                              "(this project's earlier variant: rigid peg, peg contact force, peak break, damped "
-                             "force law, gaussian spawn); the flags below override single settings")
+                             "force law, gaussian spawn) or 'authors_dr' (the authors' task as their randomised runs "
+                             "train it: their dynamics randomisation, end-effector noise 0.5 mm, no torque observed); "
+                             "the flags below override single settings")
     parser.add_argument("--seeds", type=int, default=1, help="seeds trained together (default 1)")
     parser.add_argument("--seed", type=int, default=0, help="base random seed")
     parser.add_argument("--total-steps", type=int, default=None, help="env steps per seed (preset default)")

@@ -112,6 +112,8 @@ def test_suite_claims_read_the_mean_force_of_the_task_protocol():
     earlier = {c.text: c for c in report.suite_claims(results, {}, task="earlier")}[text]
     assert authors.verdict == claims.HOLDS and authors.numbers == "1.00 N vs 3.00 N"
     assert earlier.verdict == claims.INCONCLUSIVE and earlier.numbers == "0.70 N vs 0.70 N"
+    randomised = {c.text: c for c in report.suite_claims(results, {}, task="authors_dr")}[text]
+    assert randomised.numbers == "1.00 N vs 3.00 N"  # the authors' randomised task reports their metric
 
 
 def test_verdict_alike_holds_when_the_interval_contains_zero():

@@ -112,6 +112,10 @@ def test_suite_force_law_variant_is_the_law_the_task_does_not_use(tmp_path):
         experiments.parse_args(["--out", str(tmp_path), "--only", "match,match_literal"])
     with pytest.raises(ValueError, match="match_literal is match on the 'authors' task"):
         experiments.SuiteConfig(out=tmp_path, only=("match_literal",))
+    randomised = experiments.parse_args(["--out", str(tmp_path), "--task", "authors_dr"])
+    assert randomised.only == authors.only and experiments.sweep_noise_type("authors_dr") == "shell"
+    assert experiments.sweep_noise_type("earlier") == "uniform"
+    assert experiments.run_spec("pose", randomised).env.randomization.dynamics
 
 
 def test_an_evaluation_is_reused_only_for_the_checkpoints_it_evaluated(tmp_path, monkeypatch):

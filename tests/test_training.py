@@ -597,6 +597,13 @@ def test_train_cli_controller_and_force_law_flags(tmp_path):
     assert earlier.break_sampling == "peak" and earlier.force_sensor == "peg_contact" and not earlier.observe_torque
     assert not earlier.randomization.enabled and earlier.spawn_noise_type == "gaussian"
     assert earlier.controller.force_feedforward and earlier.hole_obs_noise == 0.0025
+    # the authors' randomised runs: the authors' task plus their dynamics draws, 0.5 mm EE noise, no torque
+    randomised = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "match", "--task", "authors_dr", "--out", str(tmp_path)])).env
+    assert randomised.randomization.dynamics and randomised.randomization.rot_stiffness == (20.0, 60.0)
+    assert randomised.ee_pos_obs_noise == 0.0005 and not randomised.observe_torque
+    assert dataclasses.replace(randomised, randomization=spec.env.randomization, ee_pos_obs_noise=0.00025,
+                               observe_torque=True, controller=c) == dataclasses.replace(spec.env, controller=c)
     mixed = train_cli.build_spec(train_cli.parse_args(
         ["--method", "match", "--peg-offset-mm", "1,0,2", "--force-frame", "hand", "--force-sensor", "peg_contact",
          "--out", str(tmp_path)])).env

@@ -8,6 +8,7 @@ import pathlib
 
 import numpy as np
 
+from match_jax.envs.tasks import reports_authors_metrics
 from match_jax.experiments import claims, plots
 from match_jax.training.presets import get_preset
 from match_jax.experiments.suite import HYBRID, PAPER_TABLE1, SUITE, SWEEP_MM, SuiteConfig, run_spec, unbreakable
@@ -151,7 +152,8 @@ def selection_figure_data(row: dict) -> dict:
 
 def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict], task: str = "authors") -> list[claims.Claim]:
     """The paper's qualitative claims on this suite's per-seed evaluations and learning curves of finished
-    runs. Mean force is the authors' definition on their task (`task='authors'`), ours on the earlier variant."""
+    runs. Mean force is the authors' definition on their tasks (`tasks.reports_authors_metrics`), ours on the earlier
+    variant."""
     def values(name, metric):
         if name not in results:
             return []
@@ -171,7 +173,7 @@ def suite_claims(results: dict[str, list[dict]], curves: dict[str, dict], task: 
                 return []
             return list(np.nanmean(np.array(per_seed, np.float64), axis=0))
         noise_type, noise_mm, breakable_metric, key = _CLAIM_METRICS[metric]
-        if metric == "force" and task == "authors":
+        if metric == "force" and reports_authors_metrics(task):
             key = "authors_mean_force_n"
         row = _table1_row(results[name]) if noise_type == "gaussian" else _row(
             results[name], sweep_type(results[name]), noise_mm, breakable_metric and breakable)
@@ -412,7 +414,7 @@ def _claims_lines(results: dict[str, list[dict]], curves: dict[str, dict], task:
               "over seeds (no interval); 'the shells': the mean of the four shells' break rates per seed. Mean "
               "force: "
               + ("the authors' definition (end-of-step force signal pooled over every step with some axis in "
-                 "contact)." if task == "authors" else "ours (mean contact force per episode)."), "",
+                 "contact)." if reports_authors_metrics(task) else "ours (mean contact force per episode)."), "",
               "| claim | verdict | ours |", "|---|---|---|"]
     lines += [f"| {c.text} | {c.verdict} | {c.numbers} |" for c in suite_claims(results, curves, task)]
     return lines

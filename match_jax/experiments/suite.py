@@ -9,7 +9,7 @@ import pathlib
 from typing import NamedTuple
 
 from match_jax.cli import parse_fields
-from match_jax.envs.tasks import TASKS, task_config
+from match_jax.envs.tasks import TASKS, reports_authors_metrics, task_config
 from match_jax.training.presets import get_preset
 from match_jax.training.runs import RunSpec
 
@@ -49,8 +49,8 @@ SWEEP_MM = (0.0, 1.0, 2.5, 5.0, 7.5)  # noise sweep levels (mm); 0 = the true ho
 
 def sweep_noise_type(task: str) -> str:
     """The noise sweep of a task protocol: the authors' spherical shells (radius U[previous level, level]
-    in a random direction) on their task, uniform +-level per axis on the earlier variant."""
-    return "shell" if task == "authors" else "uniform"
+    in a random direction) on their tasks, uniform +-level per axis on the earlier variant."""
+    return "shell" if reports_authors_metrics(task) else "uniform"
 
 
 def suite_runs(task: str) -> tuple[str, ...]:

@@ -224,10 +224,11 @@ def run_title(spec, run_dir: str | pathlib.Path, seed_index: int, checkpoint: st
     from match_jax.envs.tasks import TASKS, task_config
 
     labels = {"pose": "Pose", "vices": "VICES", "hybrid": "Hybrid-Basic", "match": "MATCH"}
-    names = {"authors": "the authors' task", "earlier": "the earlier task variant"}
+    names = {"authors": "the authors' task", "earlier": "the earlier task variant",
+             "authors_dr": "the authors' randomised task"}
     keys = {key for task in TASKS.values() for key in task["settings"]}
     env = spec.env
-    task = next((name for name in ("earlier", "authors")  # 'authors' sets nothing: the last to try
+    task = next((name for name in ("earlier", "authors_dr", "authors")  # 'authors' sets nothing: the last to try
                  if env is not None and all(getattr(env, k) == getattr(task_config(name, env.control), k)
                                             for k in keys)), None)
     where = names.get(task, "a custom task") + ("" if env is None or math.isfinite(env.break_force)
