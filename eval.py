@@ -6,9 +6,10 @@
     python eval.py --baseline spiral --episodes 100 --noise-mm 1 --json results/spiral.json
     python eval.py runs/match_cpu --episodes 100 --render results/match_episode.png  # + image strip and GIF
     python eval.py runs/match_cpu --env.contact-timeconst 0.05     # any field of the run's task config
+    python eval.py runs/match_cpu --mean-action pre_tanh           # the authors' deterministic action
 
 A run is evaluated for every seed with the deterministic policy (tanh of the mean, force control
-where p_force > 0.5) with one compiled rollout, run once per seed and noise level, at the training noise unless
+where p_force > 0.5; --mean-action pre_tanh: the pre-tanh mean, unclipped) with one compiled rollout, run once per seed and noise level, at the training noise unless
 --noise-mm / --noise-sweep say otherwise. Printed: per seed and mean +- standard error over seeds of
 success %, break %, time to success (s) and mean contact force (N), time and force by the authors'
 definitions, with a legend line (--all-columns adds ours, both break checks and, for hybrid policies,
@@ -54,6 +55,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="scripted baselines: episodes per jitted batch (default: all)")
     parser.add_argument("--physics-backend", choices=["jax", "warp"], default=None,
                         help="evaluate a run's policies on this physics backend (default: the run's own)")
+    parser.add_argument("--mean-action", choices=["tanh", "pre_tanh"], default="tanh",
+                        help="a run's deterministic action: tanh of the policy's mean (default) or the pre-tanh "
+                             "mean, unclipped, as the authors' simulated evaluation sends it")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", type=pathlib.Path, default=None, help="write the results here (every column)")
     parser.add_argument("--all-columns", action="store_true",
@@ -94,6 +98,8 @@ def parse_args(argv=None) -> argparse.Namespace:
         args.break_force = 10.0
     if args.batch < 0:
         parser.error(f"--batch must be >= 0, got {args.batch}")
+    if args.baseline is not None and args.mean_action != "tanh":
+        parser.error(f"--mean-action {args.mean_action} applies to a run's policies, not to --baseline")
     if args.video_format is not None and args.render is None:
         parser.error("--video-format needs --render PATH (the video is written beside the strip)")
     args.video_format = args.video_format or "gif"
@@ -140,7 +146,8 @@ def evaluate_run_dir(args) -> dict:
     noise_type = args.noise_type or ("shell" if args.noise_sweep is not None else None)
     results = evaluate_run_grid(args.run_dir, args.episodes, levels, noise_type,
                                 None if break_force is None else [break_force], args.checkpoint, 1000 + args.seed,
-                                physics_backend=args.physics_backend, env_config=args.env_config)
+                                physics_backend=args.physics_backend, env_config=args.env_config,
+                                mean_action=args.mean_action)
     for result in results:
         print(format_result(result, all_columns=args.all_columns))
     return results[0] if args.noise_sweep is None else {"noise_sweep": results}
@@ -177,13 +184,17 @@ def render_episode(args) -> None:
 
         run, policy_params = load_policy(args.run_dir, 0, args.checkpoint, args.physics_backend)
         env = run.env
-        if args.env_config is not None:
+        squash = args.mean_action == "tanh"
+        if args.env_config is not None or not squash:
             import dataclasses
 
             from match_jax.envs import FPiHEnv
 
-            env = FPiHEnv(dataclasses.replace(args.env_config, physics_backend=env.config.physics_backend))
-        policy = deterministic_policy(run.trainer)
+            config = dataclasses.replace(args.env_config or env.config, physics_backend=env.config.physics_backend)
+            if not squash:  # the authors' env takes the pre-tanh mean unclipped
+                config = dataclasses.replace(config, actions=dataclasses.replace(config.actions, clip=False))
+            env = FPiHEnv(config)
+        policy = deterministic_policy(run.trainer, squash)
         policy_state = (policy_params["params"], policy_params["policy_stats"])
         title = render.run_title(run.spec, args.run_dir, 0, args.checkpoint)
     else:

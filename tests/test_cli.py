@@ -178,19 +178,26 @@ def test_eval_env_flags_replace_the_runs_task_config_before_any_work(monkeypatch
     class Evaluated(Exception):
         pass
 
-    def grid_rollout(ppo, env_config):  # the evaluation's env, caught before anything compiles
-        raise Evaluated(env_config)
+    def grid_rollout(ppo, env_config, mean_action="tanh"):  # the evaluation's env, caught before compiling
+        raise Evaluated(env_config, mean_action)
 
     monkeypatch.setattr(evaluation, "_grid_rollout", grid_rollout)
     with pytest.raises(Evaluated) as evaluated:
         evaluation.evaluate_run_grid(SHIPPED_RUN, 2, env_config=args.env_config)
     assert evaluated.value.args[0].contact_timeconst == 0.05
+    with pytest.raises(Evaluated) as evaluated:  # the authors' deterministic action reaches the rollout
+        evaluation.evaluate_run_grid(SHIPPED_RUN, 2, mean_action="pre_tanh")
+    assert evaluated.value.args[1] == "pre_tanh"
+    with pytest.raises(ValueError, match="mean_action must be one of"):
+        evaluation.evaluate_run_grid(SHIPPED_RUN, 2, mean_action="raw")
+    assert eval_cli.parse_args([str(SHIPPED_RUN), "--mean-action", "pre_tanh"]).mean_action == "pre_tanh"
     with pytest.raises(ValueError, match="the run's policies need control='pose'"):
         evaluation.evaluate_run_grid(SHIPPED_RUN, 2, env_config=dataclasses.replace(run_env, control="hybrid"))
     for argv, message in (([str(SHIPPED_RUN), "--env.contact-timeconst", "x"],
                            "--env.contact-timeconst: could not convert string to float: 'x'"),
                           (["--baseline", "spiral", "--env.break-force", "5"], "not with --baseline"),
-                          ([str(SHIPPED_RUN), "--env.control", "hybrid"], "--env.control and --env.observe-torque")):
+                          ([str(SHIPPED_RUN), "--env.control", "hybrid"], "--env.control and --env.observe-torque"),
+                          (["--baseline", "spiral", "--mean-action", "pre_tanh"], "not to --baseline")):
         with pytest.raises(SystemExit):
             eval_cli.parse_args(argv)
         assert message in capsys.readouterr().err.strip().splitlines()[-1]

@@ -127,6 +127,9 @@ def test_mode_and_action_layout():
     action = np.asarray(dist.to_action(dist.mode(head)))[0]
     np.testing.assert_array_equal(action[list(space.selection)], [1.0, 0.0, 1.0])
     np.testing.assert_allclose(action[list(space.continuous)], np.tanh(np.arange(7) / 10), rtol=1e-6)
+    raw = np.asarray(dist.to_action(dist.mode(head), squash=False))[0]  # the authors' evaluation: the mean itself
+    np.testing.assert_allclose(raw[list(space.continuous)], np.arange(7) / 10, rtol=1e-6)
+    np.testing.assert_array_equal(raw[list(space.selection)], [1.0, 0.0, 1.0])
     pose = D.make_distribution("pose")
     assert pose.num_selections == 0 and pose.to_action(pose.mode(_head(jax.random.PRNGKey(0), 2, 0, 4))).shape == (2, 4)
 

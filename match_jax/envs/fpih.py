@@ -416,7 +416,7 @@ class FPiHEnv(BraxEnv):
                 f"action has shape {action.shape}; the '{cfg.control}' controller expects ({self.action_size},) "
                 f"per env ({', '.join(space.describe())}); vmap over a batch")
         data, info = state.pipeline_state, state.info
-        action = jnp.clip(action, jnp.asarray(space.low), jnp.asarray(space.high))
+        action = self._bounded(action)
         smoothed = self._smooth(action, info["prev_action"])
         target = self._control_target(data, info, smoothed)
         m = randomization.apply(self.mjx_model, info["model"])
@@ -523,6 +523,12 @@ class FPiHEnv(BraxEnv):
         return SimResult(data, force, max_force, force_sum / (control_steps * cfg.physics_substeps), torque,
                          contact)
 
+    def _bounded(self, action: jax.Array) -> jax.Array:
+        """The action clipped to the space's bounds, or as given with `ActionConfig.clip` off."""
+        if not self.config.actions.clip:
+            return action
+        return jnp.clip(action, jnp.asarray(self.action_space.low), jnp.asarray(self.action_space.high))
+
     def _smooth(self, action: jax.Array, prev: jax.Array) -> jax.Array:
         """EMA on continuous components; selections pass through."""
         alpha = self.config.actions.ema
@@ -542,7 +548,7 @@ class FPiHEnv(BraxEnv):
         gains = info["gains"]
         kp = gains.get("pos_stiffness", jnp.asarray(cfg.controller.pos_stiffness, jnp.float32))
         if space.stiffness:
-            kp = acfg.stiffness(action[jnp.asarray(space.stiffness)])
+            kp = acfg.stiffness(jnp.clip(action[jnp.asarray(space.stiffness)], -1.0, 1.0))
         force = jnp.zeros(3)
         position_axes = jnp.ones(3)
         if space.force:

@@ -127,11 +127,13 @@ class ProductDistribution:
         """The deterministic action: tanh of the mean; force control where p_force > 0.5."""
         return Sample(head.mean, (head.logits > 0.0).astype(jnp.float32))
 
-    def to_action(self, sample: Sample) -> jax.Array:
-        """The env's action vector (..., space.size) of a latent sample."""
+    def to_action(self, sample: Sample, squash: bool = True) -> jax.Array:
+        """The env's action vector (..., space.size) of a latent sample: tanh of its continuous components
+        (squash=False: the pre-tanh values themselves, as the authors' deterministic evaluation sends them)."""
         batch = sample.pre_tanh.shape[:-1]
         action = jnp.zeros(batch + (self.space.size,), sample.pre_tanh.dtype)
-        action = action.at[..., jnp.asarray(self.space.continuous)].set(jnp.tanh(sample.pre_tanh))
+        continuous = jnp.tanh(sample.pre_tanh) if squash else sample.pre_tanh
+        action = action.at[..., jnp.asarray(self.space.continuous)].set(continuous)
         if self.num_selections:
             action = action.at[..., jnp.asarray(self.space.selection)].set(sample.selection)
         return action

@@ -702,18 +702,20 @@ def make_trainer(config: PPOConfig, env: FPiHEnv, mesh: jax.sharding.Mesh | None
                    distribution=dist)
 
 
-def deterministic_action(trainer: Trainer, params: dict, policy_stats, policy_obs: jax.Array) -> jax.Array:
-    """The env action of the deterministic policy: tanh of the mean, force control where p_force > 0.5."""
+def deterministic_action(trainer: Trainer, params: dict, policy_stats, policy_obs: jax.Array,
+                         squash: bool = True) -> jax.Array:
+    """The env action of the deterministic policy: tanh of the mean (squash=False: the pre-tanh mean),
+    force control where p_force > 0.5."""
     dist = trainer.distribution
-    return dist.to_action(dist.mode(trainer.policy_head(params, policy_stats, policy_obs)))
+    return dist.to_action(dist.mode(trainer.policy_head(params, policy_stats, policy_obs)), squash)
 
 
-def deterministic_policy(trainer: Trainer) -> Any:
+def deterministic_policy(trainer: Trainer, squash: bool = True) -> Any:
     """`policy(obs, (params, policy_stats), key) -> (action, same state)` for match_jax.training.evaluation: the
     deterministic action (`deterministic_action`), with the parameters as the policy state, so one
     compiled rollout serves every seed."""
 
     def policy(obs, policy_state, key):
-        return deterministic_action(trainer, *policy_state, obs["state"]), policy_state
+        return deterministic_action(trainer, *policy_state, obs["state"], squash), policy_state
 
     return policy

@@ -8,7 +8,8 @@ scripted baselines and for every seed of a training run.
 
 A policy is `policy(obs, policy_state, key) -> (action, policy_state)` for ONE env (it is vmapped),
 where `obs` is the env's observation dict; a trained run's is `ppo.deterministic_policy` (tanh of the
-mean, force control where p_force > 0.5). Metrics come only from the env's own per-step info; over
+mean, force control where p_force > 0.5; `mean_action='pre_tanh'`: the pre-tanh mean, unclipped, as the
+authors' evaluation sends it). Metrics come only from the env's own per-step info; over
 seeds they are reported as mean +- standard error.
 """
 
@@ -38,6 +39,10 @@ Policy = Callable[[dict, Any, jax.Array], tuple[jax.Array, Any]]
 # U[previous edge, level] (mm): shells 0-1, 1-2.5, 2.5-5, 5-7.5.
 SHELL_EDGES_MM = (0.0, 1.0, 2.5, 5.0, 7.5)
 NOISE_KINDS = ("gaussian", "uniform", "shell")
+# The deterministic action of a squashed policy: 'tanh' = tanh of the mean, clipped to [-1, 1] by the env
+# (ours, and what the authors' robot scripts send); 'pre_tanh' = the pre-tanh mean, unclipped (the
+# authors' simulated evaluation).
+MEAN_ACTIONS = ("tanh", "pre_tanh")
 
 
 def shell_inner_mm(level_mm: float) -> float:
@@ -284,15 +289,19 @@ def evaluation_config(ppo: PPOConfig, env_config: FPiHConfig) -> tuple[PPOConfig
 
 
 @functools.lru_cache(maxsize=4)
-def _grid_rollout(ppo: PPOConfig, env_config: FPiHConfig):
-    """(unbreakable env, jitted rollout) of a run configuration's deterministic policy, compiled once per
-    process and shape (`evaluation_config`): (keys (S, E, 2), stacked (params, policy_stats) of S seeds, hole
-    observation offsets (S, L, E, 3) m) -> trajectory dict of (S, L, T, E, ...) arrays, with 'p_force'
-    (T, E, 3) for hybrid methods."""
+def _grid_rollout(ppo: PPOConfig, env_config: FPiHConfig, mean_action: str = "tanh"):
+    """(unbreakable env, jitted rollout) of a run configuration's deterministic policy (`mean_action`, one
+    of MEAN_ACTIONS), compiled once per process and shape (`evaluation_config`): (keys (S, E, 2), stacked
+    (params, policy_stats) of S seeds, hole observation offsets (S, L, E, 3) m) -> trajectory dict of
+    (S, L, T, E, ...) arrays, with 'p_force' (T, E, 3) for hybrid methods."""
+    squash = mean_action == "tanh"
+    if not squash:
+        env_config = dataclasses.replace(env_config, actions=dataclasses.replace(env_config.actions, clip=False))
     env = FPiHEnv(env_config)
     trainer = make_trainer(ppo, env)  # for its policy head and distribution; nothing of it is compiled
     hybrid = trainer.distribution.num_selections > 0
-    rollout = make_rollout(env, deterministic_policy(trainer), batched_policy_state=False, record_obs=hybrid)
+    rollout = make_rollout(env, deterministic_policy(trainer, squash), batched_policy_state=False,
+                           record_obs=hybrid)
 
     def one_level(keys, policy_state, offsets):
         traj = rollout(keys, policy_state, offsets)
@@ -310,7 +319,8 @@ def _grid_rollout(ppo: PPOConfig, env_config: FPiHConfig):
 def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_levels_mm=None,
                       noise_type: str | None = None, break_forces=None, checkpoint: str = "best",
                       seed: int = 1000, return_trajectories: bool = False, noise_specs=None,
-                      physics_backend: str | None = None, env_config: FPiHConfig | None = None) -> list[dict]:
+                      physics_backend: str | None = None, env_config: FPiHConfig | None = None,
+                      mean_action: str = "tanh") -> list[dict]:
     """Evaluate every seed of a run at several noise levels and break thresholds in ONE compiled rollout.
 
     The rollout runs unbreakable; a break threshold is applied afterwards (identical up to the first
@@ -322,9 +332,13 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     dict (see `evaluate_run`) per (noise level, break force). `physics_backend` ('jax' | 'warp'; None: the
     run's own) evaluates the policies on that physics backend. `env_config` (None: the run's) replaces the
     run's task config, e.g. with a softer contact; it must keep the run's controller and observations.
+    `mean_action` (MEAN_ACTIONS): 'tanh' (tanh of the mean) or 'pre_tanh' (the authors' evaluation: the
+    pre-tanh mean, unclipped).
     """
     if not (isinstance(episodes, int) and episodes >= 1):
         raise ValueError(f"episodes must be a positive integer, got {episodes!r}")
+    if mean_action not in MEAN_ACTIONS:
+        raise ValueError(f"mean_action must be one of {MEAN_ACTIONS}, got {mean_action!r}")
     spec = load_spec(run_dir)
     if env_config is not None:
         if env_config.control != spec.env.control or env_config.observe_torque != spec.env.observe_torque:
@@ -345,7 +359,8 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
     run, policies = load_policies(run_dir, checkpoint, spec.env.physics_backend)
     stacked = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[(p["params"], p["policy_stats"]) for p in policies])
     hybrid = run.trainer.distribution.num_selections > 0
-    env, grid_rollout = _grid_rollout(*evaluation_config(spec.ppo, sized_for_batch(spec.env, episodes)))
+    env, grid_rollout = _grid_rollout(*evaluation_config(spec.ppo, sized_for_batch(spec.env, episodes)),
+                                      mean_action)
     k_episodes, k_noise = jax.random.split(jax.random.PRNGKey(seed))
     keys = jax.random.split(k_episodes, spec.num_seeds * episodes).reshape(spec.num_seeds, episodes, 2)
     shape = (spec.num_seeds, 1, episodes, 3)
@@ -370,8 +385,9 @@ def evaluate_run_grid(run_dir: str | pathlib.Path, episodes: int = 100, noise_le
               for li in range(len(levels))] for s in range(spec.num_seeds)]
     traj = {k: np.concatenate([np.concatenate([c[k] for c in row], axis=1) for row in calls], axis=0)
             for k in calls[0][0]}  # (S, L, T, E, ...)
-    return grid_results(traj, spec, noise_specs, break_forces, env.dt, hybrid, str(run_dir), checkpoint,
-                        return_trajectories)
+    results = grid_results(traj, spec, noise_specs, break_forces, env.dt, hybrid, str(run_dir), checkpoint,
+                           return_trajectories)
+    return [{**result, "mean_action": mean_action} for result in results]
 
 
 def grid_results(traj: dict, spec, noise_specs, break_forces, policy_dt: float, hybrid: bool, run_dir: str,
@@ -440,14 +456,16 @@ def _aggregate(per_seed: list[dict], hybrid: bool) -> dict:
 
 def evaluate_run(run_dir: str | pathlib.Path, episodes: int = 100, noise_mm: float | None = None,
                  noise_type: str | None = None, break_force: float | None = None, checkpoint: str = "best",
-                 seed: int = 1000, return_trajectories: bool = False, physics_backend: str | None = None) -> dict:
+                 seed: int = 1000, return_trajectories: bool = False, physics_backend: str | None = None,
+                 mean_action: str = "tanh") -> dict:
     """Evaluate every seed of a run on `episodes` episodes each; per-seed and mean +- SE metrics.
 
-    noise_mm / noise_type / break_force / physics_backend override the run's settings (None: as trained).
+    noise_mm / noise_type / break_force / physics_backend override the run's settings (None: as trained);
+    mean_action: see `evaluate_run_grid`.
     """
     return evaluate_run_grid(run_dir, episodes, None if noise_mm is None else [noise_mm], noise_type,
                              None if break_force is None else [break_force], checkpoint, seed,
-                             return_trajectories, physics_backend=physics_backend)[0]
+                             return_trajectories, physics_backend=physics_backend, mean_action=mean_action)[0]
 
 
 # eval.py's table: (column, label, scale). The default columns are the headline numbers as the README
@@ -467,7 +485,8 @@ def format_result(result: dict, all_columns: bool = False) -> str:
     definitions; all_columns=True: every column of COLUMNS, ours and the authors' (docs/evaluation.md)."""
     head = (f"{result['method']} (ssl {result['ssl_coef']:g}), {result['checkpoint']} checkpoint, "
             f"{result['episodes_per_seed']} episodes x {result['seeds']} seeds, hole noise {result['noise_mm']:g} mm "
-            f"({result['noise_type']}), break force {result['break_force_n'] or 'none'}")
+            f"({result['noise_type']}), break force {result['break_force_n'] or 'none'}"
+            + (", pre-tanh mean actions" if result.get("mean_action") == "pre_tanh" else ""))
     table, width = (FULL_TABLE, 19) if all_columns else (HEADLINE_TABLE, 15)
     lines = [head, "  seed    " + "".join(f"{name:>{width}}" for _, name, _ in table)]
     for s in result["per_seed"]:

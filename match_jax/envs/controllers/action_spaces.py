@@ -10,6 +10,8 @@ Every action component is a number in [-1, 1] except the selections, which are 0
 - force (hybrid): f_x, f_y = a * force_xy_max; f_z = f_z_min + (a + 1) / 2 (f_z_max - f_z_min) (N).
 - stiffness (VICES): k_p = k_min + (a + 1) / 2 (k_max - k_min) per translational axis.
 Continuous components are smoothed with an EMA, a_ema = ema * a + (1 - ema) a_prev; selections are not.
+Actions are clipped to [-1, 1] first (`ActionConfig.clip`); unclipped, as the authors' env takes them, a
+component beyond +-1 scales past its range (position targets stay in their box, VICES gains in their range).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ class ActionConfig:
     stiffness_range: tuple[float, float] = (0.0, 200.0)  # VICES k_p range, N/m on Factory's law
     ema: float = 0.2  # weight of the new action
     selection_threshold: float = 0.5  # force control on an axis when its selection > threshold
+    clip: bool = True  # actions clipped to [-1, 1] before smoothing; False: passed on as the authors' env does
 
     def __post_init__(self):
         for name in ("pos_scale", "pos_box", "yaw_scale", "force_xy_max"):
