@@ -175,7 +175,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def _defaults(args: argparse.Namespace, method: str) -> dict:
     """The learning and task configs of the preset, method and task flags, before the config-field flags."""
-    from match_jax.envs.randomization import DYNAMICS_PRESETS, ModelRandomization
+    from match_jax.envs.randomization import DYNAMICS_PRESETS
     from match_jax.envs.tasks import task_config
     from match_jax.training.presets import get_preset
 
@@ -196,9 +196,10 @@ def _defaults(args: argparse.Namespace, method: str) -> dict:
         settings["hole_obs_noise"] = args.hole_noise_mm / 1000.0
     if args.force_sensor is not None:
         settings["force_sensor"] = args.force_sensor
-    if args.peg_offset_mm is not None:
-        settings["randomization"] = ModelRandomization(peg_offset_range=tuple(v / 1000.0 for v in args.peg_offset_mm))
     env = task_config(args.task, ppo.control, args.force_law, **settings)
+    if args.peg_offset_mm is not None:  # the task's other draws (authors_dr: its dynamics) stay
+        env = dataclasses.replace(env, randomization=dataclasses.replace(
+            env.randomization, peg_offset_range=tuple(v / 1000.0 for v in args.peg_offset_mm)))
     if args.dynamics_randomization:
         env = dataclasses.replace(env, randomization=env.randomization.with_dynamics(
             **DYNAMICS_PRESETS[args.dynamics_randomization]))

@@ -191,6 +191,10 @@ def test_eval_env_flags_replace_the_runs_task_config_before_any_work(monkeypatch
     with pytest.raises(ValueError, match="mean_action must be one of"):
         evaluation.evaluate_run_grid(SHIPPED_RUN, 2, mean_action="raw")
     assert eval_cli.parse_args([str(SHIPPED_RUN), "--mean-action", "pre_tanh"]).mean_action == "pre_tanh"
+    monkeypatch.undo()
+    spec = load_spec(SHIPPED_RUN)  # the pre-tanh rollout's env passes actions unclipped; nothing compiles yet
+    assert evaluation._grid_rollout(spec.ppo, spec.env, "pre_tanh")[0].config.actions.clip is False
+    assert evaluation._grid_rollout(spec.ppo, spec.env, "tanh")[0].config.actions.clip is True
     with pytest.raises(ValueError, match="the run's policies need control='pose'"):
         evaluation.evaluate_run_grid(SHIPPED_RUN, 2, env_config=dataclasses.replace(run_env, control="hybrid"))
     for argv, message in (([str(SHIPPED_RUN), "--env.contact-timeconst", "x"],

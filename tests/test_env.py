@@ -80,21 +80,22 @@ def test_hole_observation_offset_replaces_the_resets_own_draw(env, batched):
 
 def test_unclipped_actions_scale_past_their_range_as_the_authors_env_takes_them(env, batched):
     """With `ActionConfig.clip` off a force-x action of 2 targets 40 N (clipped: 20 N) and a position action of
-    -3 moves the target 6 cm down (clipped: 2 cm), kept inside the box around the observed hole top."""
+    -5 moves the target 10 cm down (clipped: 2 cm), which the box around the observed hole top stops."""
     reset, _ = batched
     state = jax.tree_util.tree_map(lambda x: x[0], reset(jax.random.split(jax.random.PRNGKey(5), 4)))
     config = env.config
     unclipped = FPiHEnv(dataclasses.replace(config, actions=dataclasses.replace(config.actions, clip=False)))
     space = env.action_space
     action = env.neutral_action().at[space.force[0]].set(2.0).at[space.selection[0]].set(1.0)
-    action = action.at[space.position[2]].set(-3.0)
+    action = action.at[space.position[2]].set(-5.0)
     ee_z = float(state.pipeline_state.site_xpos[env.ids.ee_site][2])
     box_bottom = float(state.info["hole_pos"][2] + state.info["hole_obs_offset"][2]) + env.hole_depth \
         - config.actions.pos_box
-    for e, force_x, drop in ((env, 20.0, 0.02), (unclipped, 40.0, 0.06)):
+    assert ee_z - 0.10 < box_bottom < ee_z - 0.02
+    for e, force_x, target_z in ((env, 20.0, ee_z - 0.02), (unclipped, 40.0, box_bottom)):
         target = e._control_target(state.pipeline_state, state.info, e._bounded(action))
         assert float(target.force[0]) == pytest.approx(force_x, rel=1e-6)
-        assert float(target.pos[2]) == pytest.approx(max(ee_z - drop, box_bottom), abs=1e-6)
+        assert float(target.pos[2]) == pytest.approx(target_z, abs=1e-6)
 
 
 def test_reward_is_highest_at_the_goal(env):

@@ -24,6 +24,7 @@ import pytest
 import train as train_cli
 from match_jax.training import checkpoints
 from match_jax.envs import FPiHConfig
+from match_jax.envs.tasks import TASKS
 from match_jax.envs.point_mass import PointMassConfig, PointMassEnv
 from match_jax.rl.ppo import RuntimeValues, make_trainer
 from match_jax.training.presets import get_preset
@@ -604,6 +605,10 @@ def test_train_cli_controller_and_force_law_flags(tmp_path):
     assert randomised.ee_pos_obs_noise == 0.0005 and not randomised.observe_torque
     assert dataclasses.replace(randomised, randomization=spec.env.randomization, ee_pos_obs_noise=0.00025,
                                observe_torque=True, controller=c) == dataclasses.replace(spec.env, controller=c)
+    rigid = train_cli.build_spec(train_cli.parse_args(
+        ["--method", "match", "--task", "authors_dr", "--peg-offset-mm", "0,0,0", "--out", str(tmp_path)])).env
+    assert rigid.randomization == dataclasses.replace(randomised.randomization, peg_offset_range=(0.0, 0.0, 0.0))
+    assert set(train_cli.TASKS) == set(TASKS)  # train.py's --task choices (listed before jax loads) are the tasks
     mixed = train_cli.build_spec(train_cli.parse_args(
         ["--method", "match", "--peg-offset-mm", "1,0,2", "--force-frame", "hand", "--force-sensor", "peg_contact",
          "--out", str(tmp_path)])).env

@@ -214,8 +214,8 @@ def parse_args(argv=None) -> SuiteConfig:
     parser.add_argument("--out", type=pathlib.Path, required=True)
     parser.add_argument("--preset", choices=["cpu", "paper", "tiny"], default="cpu")
     parser.add_argument("--task", choices=sorted(TASKS), default="authors",
-                        help="task protocol of every run: the authors' (default), the authors' as their randomised runs "
-                             "train it (authors_dr) or this project's earlier variant (earlier)")
+                        help="task protocol of every run: the authors' (default), the authors' as their randomised "
+                             "runs train it (authors_dr) or this project's earlier variant (earlier)")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--total-steps", type=int, default=None)
     parser.add_argument("--episodes", type=int, default=100,
