@@ -12,8 +12,8 @@ A run is evaluated for every seed with the deterministic policy (tanh of the mea
 where p_force > 0.5; --mean-action pre_tanh: the pre-tanh mean, unclipped) with one compiled rollout,
 run once per seed and noise level, at the training noise unless --noise-mm / --noise-sweep say otherwise.
 Printed: per seed and mean +- standard error over seeds of success %, break %, time to success (s) and
-mean contact force (N), time and force by the authors' definitions, with a legend line (--all-columns adds ours, both break checks and, for hybrid policies,
-the force-selection rates). The JSON (--json) holds every column. Every field of the run's task config
+mean contact force (N), time and force by the authors' definitions, with a legend line (--all-columns adds
+ours, both break checks and, for hybrid policies, the force-selection rates). The JSON (--json) holds every column. Every field of the run's task config
 (FPiHConfig and its nested configs) is a flag, --env.FIELD or --env.controller.FIELD, ..., as train.py's
 --help lists them; they replace the run's values for this evaluation.
 """
